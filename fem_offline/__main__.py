@@ -1,0 +1,127 @@
+"""Command line: `python -m fem_offline solve|sweep|mesh ...`; bad input gets one line, exit code 2."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .scene import SceneError, load_scene
+
+
+def _finite(name: str):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{name} must be finite, got {text!r}")
+        return value
+
+    return parse
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m fem_offline", description=__doc__)
+    ap.add_argument("-v", "--verbose", action="store_true", help="log solver progress")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("solve", help="solve one (displacement, angle) case")
+    s.add_argument("--scene", required=True, type=Path)
+    s.add_argument("--displacement-mm", required=True, type=_finite("--displacement-mm"))
+    s.add_argument("--angle-deg", required=True, type=_finite("--angle-deg"))
+    s.add_argument("--out", required=True, type=Path, help="output .npz")
+    s.add_argument("--mesh", type=Path, help="reuse a saved mesh (e.g. a sweep's mesh.vtu)")
+    s.add_argument("--step-mm", type=_finite("--step-mm"), help="load step (default: the sweep's step)")
+
+    w = sub.add_parser("sweep", help="solve the scene's whole grid (resumable)")
+    w.add_argument("--scene", required=True, type=Path)
+    w.add_argument("--out", required=True, type=Path, help="output folder")
+    w.add_argument("--workers", type=int, default=2, help="local processes, one path each (default 2)")
+    w.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
+
+    m = sub.add_parser("mesh", help="mesh the scene and write it (.vtu, .msh or .xdmf)")
+    m.add_argument("--scene", required=True, type=Path)
+    m.add_argument("--out", required=True, type=Path)
+    return ap
+
+
+def _solve(args) -> None:
+    from .io import atomic_savez, load_or_build_mesh
+    from .problem import build_problem
+    from .solve import solve_case
+
+    if args.out.suffix != ".npz":
+        raise ValueError(f"--out: must end in .npz, got {args.out}")
+    if args.step_mm is not None and args.step_mm <= 0:
+        raise ValueError("--step-mm: must be positive")
+    scene = load_scene(args.scene)
+    mesh = load_or_build_mesh(scene, args.mesh)
+    problem = build_problem(scene, mesh)
+    u, stats = solve_case(problem, args.displacement_mm, args.angle_deg, step_mm=args.step_mm)
+    atomic_savez(
+        args.out,
+        reference_positions=mesh.nodes,
+        displacement=u,
+        displacement_mm=args.displacement_mm,
+        angle_deg=args.angle_deg,
+        newton_iterations=stats.iterations,
+        factorizations=stats.factorizations,
+        residual=stats.residual,
+        min_det_f=stats.min_det_f,
+        seconds=stats.seconds,
+        scene_sha256=scene.sha256(),
+    )
+    print(
+        f"{args.out}: {len(mesh.nodes)} nodes, max |u| {np.linalg.norm(u, axis=1).max():.4f} mm, "
+        f"{stats.iterations} Newton iterations, min det F {stats.min_det_f:.3f}, {stats.seconds:.1f} s"
+    )
+
+
+def _sweep(args) -> int:
+    from .sweep import run_sweep
+
+    if args.workers < 1:
+        raise ValueError("--workers: must be at least 1")
+    if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
+        raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
+    manifest = run_sweep(load_scene(args.scene), args.out, workers=args.workers, scheduler=args.scheduler)
+    print(f"{args.out}: {manifest['n_done']}/{manifest['n_expected']} snapshots, {manifest['wall_seconds_this_run']:.1f} s this run")
+    for err in manifest["errors"]:
+        print(f"failed: {err}", file=sys.stderr)
+    return 1 if manifest["errors"] else 0
+
+
+def _mesh(args) -> None:
+    from .io import mesh_for_scene
+    from .mesh import save
+
+    if args.out.suffix not in (".vtu", ".msh", ".xdmf"):
+        raise ValueError(f"--out: use .vtu, .msh or .xdmf, got {args.out.suffix or 'no suffix'}")
+    mesh = mesh_for_scene(load_scene(args.scene))
+    save(mesh, args.out)
+    print(f"{args.out}: {len(mesh.tets)} tets, {len(mesh.nodes)} nodes, {3 * len(mesh.nodes)} DOFs")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    from .solve import ConvergenceError
+
+    try:
+        return {"solve": _solve, "sweep": _sweep, "mesh": _mesh}[args.command](args) or 0
+    except (SceneError, ValueError, ConvergenceError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: finished snapshots are kept; run the same command again to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,139 @@
+"""Quadratic tetrahedral mesh with tissue tags and named node sets; meshio I/O.
+
+Node numbering is scikit-fem's P2 DOF numbering (vertices first, then edge midpoints), so the
+FE solution vector indexes the mesh nodes directly. Tets are stored in VTK/meshio tetra10 order:
+vertices 0-3, then edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3). gmsh swaps the last two.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .scene import Scene
+
+GMSH_TO_VTK_TET10 = np.array([0, 1, 2, 3, 4, 5, 6, 7, 9, 8])
+EDGES_VTK_TET10 = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
+SET_PREFIX = "set:"
+
+
+@dataclass(frozen=True)
+class TetMesh:
+    nodes: np.ndarray  # (n_nodes, 3) mm
+    tets: np.ndarray  # (n_tets, 10) tetra10, VTK order
+    tissue: np.ndarray  # (n_tets,) index into tissue_names
+    tissue_names: tuple[str, ...]
+    node_sets: dict[str, np.ndarray] = field(default_factory=dict)  # name -> sorted node ids
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.tets[:, :4].max()) + 1
+
+    def skfem_mesh(self):
+        """The linear (corner-vertex) skfem mesh whose P2 DOFs are these nodes."""
+        from skfem import MeshTet
+
+        return MeshTet(self.nodes[: self.n_vertices].T.copy(), self.tets[:, :4].T.copy())
+
+    def with_sets(self, **sets: np.ndarray) -> TetMesh:
+        return TetMesh(self.nodes, self.tets, self.tissue, self.tissue_names, {**self.node_sets, **sets})
+
+
+def from_vertices(points: np.ndarray, tets4: np.ndarray, tissue: np.ndarray, names) -> TetMesh:
+    """Build the P2 node set from corner vertices; tets are re-oriented to positive volume."""
+    from skfem import Basis, ElementTetP2, MeshTet
+
+    used = np.unique(tets4)
+    remap = np.full(points.shape[0], -1)
+    remap[used] = np.arange(used.size)
+    t = remap[tets4].copy()
+    p = points[used]
+    e = p[t[:, 1:]] - p[t[:, [0]]]
+    negative = np.einsum("ij,ij->i", np.cross(e[:, 0], e[:, 1]), e[:, 2]) < 0
+    t[negative, 1], t[negative, 2] = t[negative, 2], t[negative, 1].copy()
+    basis = Basis(MeshTet(p.T.copy(), t.T.copy()), ElementTetP2(), intorder=1)
+    nodes = basis.doflocs.T.copy()
+    tets10 = basis.element_dofs.T.copy()
+    # Put the edge nodes in VTK order by matching midpoints (independent of skfem's edge order).
+    mid = 0.5 * (nodes[tets10[:, EDGES_VTK_TET10[:, 0]]] + nodes[tets10[:, EDGES_VTK_TET10[:, 1]]])
+    d = np.linalg.norm(mid[:, :, None, :] - nodes[tets10[:, None, 4:]], axis=-1)  # (m, 6, 6)
+    order = d.argmin(axis=2)
+    tets10[:, 4:] = np.take_along_axis(tets10[:, 4:], order, axis=1)
+    return TetMesh(nodes, tets10, np.asarray(tissue, dtype=np.int32), tuple(names))
+
+
+def save(mesh: TetMesh, path: str | Path) -> Path:
+    """Write the mesh with meshio (.vtu, .msh, .xdmf); tissue names go to a .json sidecar. Atomic."""
+    import meshio
+
+    path = Path(path)
+    point_data = {}
+    for name, ids in mesh.node_sets.items():
+        mask = np.zeros(len(mesh.nodes), dtype=np.int32)
+        mask[ids] = 1 + np.arange(ids.size) if name == "markers" else 1
+        point_data[SET_PREFIX + name] = mask
+    cell_data = {"tissue": [mesh.tissue]}
+    if path.suffix == ".msh":
+        cell_data = {"gmsh:physical": [mesh.tissue + 1], "gmsh:geometrical": [mesh.tissue + 1]}
+    out = meshio.Mesh(mesh.nodes, [("tetra10", mesh.tets)], point_data=point_data, cell_data=cell_data)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    meshio.write(tmp, out, **({"file_format": "gmsh22", "binary": True} if path.suffix == ".msh" else {}))
+    os.replace(tmp, path)
+    _write_json(path.with_suffix(".json"), {"tissue_names": list(mesh.tissue_names)})
+    return path
+
+
+def load(path: str | Path) -> TetMesh:
+    """Read a mesh written by `save` (any meshio format) back into a TetMesh."""
+    import meshio
+
+    path = Path(path)
+    m = meshio.read(path)
+    names = tuple(json.loads(path.with_suffix(".json").read_text())["tissue_names"])
+    tets = m.get_cells_type("tetra10")
+    key = "tissue" if "tissue" in m.cell_data else "gmsh:physical"
+    tissue = np.concatenate([d for d, c in zip(m.cell_data[key], m.cells) if c.type == "tetra10"])
+    tissue = tissue.astype(np.int32) - (key == "gmsh:physical")
+    sets = {}
+    for name, mask in m.point_data.items():
+        if name.startswith(SET_PREFIX):
+            ids = np.flatnonzero(mask)
+            if name == SET_PREFIX + "markers":
+                ids = ids[np.argsort(mask[ids])]
+            sets[name[len(SET_PREFIX):]] = ids
+    return TetMesh(np.asarray(m.points, dtype=np.float64), tets.astype(np.int64), tissue, names, sets)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def read_user_mesh(scene: Scene) -> TetMesh:
+    """Read a user's tet mesh (tetra or tetra10, any meshio format) with tissue tags."""
+    import meshio
+
+    spec = scene.mesh_file
+    try:
+        m = meshio.read(spec.path)
+    except (OSError, meshio.ReadError) as exc:
+        raise ValueError(f"mesh_file.path: cannot read {spec.path}: {exc}") from None
+    blocks = [(i, c) for i, c in enumerate(m.cells) if c.type in ("tetra", "tetra10")]
+    if not blocks:
+        raise ValueError(f"mesh_file.path: {spec.path} holds no tetrahedra")
+    if spec.tag_field not in m.cell_data:
+        raise ValueError(f"mesh_file.tag_field: {spec.tag_field!r} not in {sorted(m.cell_data)}")
+    tets4 = np.vstack([c.data[:, :4] for _, c in blocks])
+    tags = np.concatenate([m.cell_data[spec.tag_field][i] for i, _ in blocks])
+    names = tuple(spec.tags)
+    lookup = {v: k for k, v in enumerate(spec.tags.values())}
+    unknown = sorted(set(np.unique(tags).tolist()) - set(lookup))
+    if unknown:
+        raise ValueError(f"mesh_file.tags: cell tags {unknown} are not mapped to a tissue")
+    tissue = np.array([lookup[v] for v in tags.tolist()])
+    return from_vertices(np.asarray(m.points, dtype=np.float64), tets4, tissue, names)

@@ -1,0 +1,141 @@
+"""Synthetic male pelvis built with gmsh's OCC kernel and meshed into tetrahedra.
+
+Coordinates in mm: x lateral (the phantom is mirror-symmetric about x = 0), y posterior ->
+anterior, z up from the table at z = 0. Tissues: adipose block; prostate ellipsoid; bladder
+sphere superior to it; rectal wall as a tube along z with an open lumen posterior to the
+prostate; pubic bone (a bar along x) anterior; spine/sacrum (a slab) posterior. All interfaces
+are bonded: the volumes are boolean fragments of one another and share one conforming mesh.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import contextmanager
+
+import numpy as np
+
+from .scene import Phantom, Scene
+
+log = logging.getLogger(__name__)
+
+# Where two input shapes overlap, the piece belongs to the earlier tissue here.
+PRIORITY = ("pubic_bone", "spine", "prostate", "bladder", "rectal_wall", "adipose")
+
+
+@contextmanager
+def _gmsh_session():
+    import gmsh
+
+    gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("General.NumThreads", 1)
+    try:
+        yield gmsh
+    finally:
+        gmsh.finalize()
+
+
+def _add_shapes(occ, ph: Phantom) -> dict[str, int]:
+    """Add one OCC volume per tissue; the lumen is already cut from the block."""
+    bx, by, bz = ph.block_mm
+    rx, ry = ph.rectum_center_xy_mm
+    block = occ.addBox(-bx / 2, -by / 2, 0.0, bx, by, bz)
+    lumen = occ.addCylinder(rx, ry, 0.0, 0.0, 0.0, bz, ph.rectum_inner_radius_mm)
+    rectum = occ.addCylinder(rx, ry, 0.0, 0.0, 0.0, bz, ph.rectum_outer_radius_mm)
+    (block_cut, _) = occ.cut([(3, block)], [(3, lumen)], removeTool=False)
+    (wall, _) = occ.cut([(3, rectum)], [(3, lumen)])
+    prostate = occ.addSphere(*ph.prostate_center_mm, 1.0)
+    occ.dilate([(3, prostate)], *ph.prostate_center_mm, *ph.prostate_semi_axes_mm)
+    bladder = occ.addSphere(*ph.bladder_center_mm, ph.bladder_radius_mm)
+    px, py, pz = ph.pubic_center_mm
+    pubic = occ.addCylinder(px - ph.pubic_length_mm / 2, py, pz, ph.pubic_length_mm, 0, 0, ph.pubic_radius_mm)
+    (lo, hi) = np.asarray(ph.spine_box_mm)
+    spine = occ.addBox(*lo, *(hi - lo))
+    return {
+        "adipose": block_cut[0][1],
+        "rectal_wall": wall[0][1],
+        "prostate": prostate,
+        "bladder": bladder,
+        "pubic_bone": pubic,
+        "spine": spine,
+    }
+
+
+def _fragment(occ, shapes: dict[str, int]) -> dict[str, list[int]]:
+    """Fragment all shapes into one conforming set; give each piece to its first-priority tissue."""
+    names = list(shapes)
+    objects = [(3, shapes[n]) for n in names]
+    _, piece_map = occ.fragment(objects[:1], objects[1:])
+    owner: dict[int, str] = {}
+    for name in sorted(names, key=PRIORITY.index, reverse=True):
+        for dim, tag in piece_map[names.index(name)]:
+            owner[tag] = name  # later (higher-priority) names overwrite
+    occ.synchronize()
+    pieces: dict[str, list[int]] = {n: [] for n in names}
+    for tag, name in owner.items():
+        pieces[name].append(tag)
+    return pieces
+
+
+def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
+    """Fine near the prostate and the guide tip, coarse far away."""
+    size = scene.mesh
+    field = gmsh.model.mesh.field
+    prostate_faces = [t for _, t in gmsh.model.getBoundary([(3, v) for v in pieces["prostate"]], oriented=False)]
+    dist = field.add("Distance")
+    field.setNumbers(dist, "SurfacesList", prostate_faces)
+    near = field.add("Threshold")
+    field.setNumber(near, "InField", dist)
+    field.setNumber(near, "SizeMin", size.prostate_mm)
+    field.setNumber(near, "SizeMax", size.max_mm)
+    field.setNumber(near, "DistMin", 0.0)
+    field.setNumber(near, "DistMax", 25.0)
+    tip = field.add("Ball")
+    field.setNumber(tip, "Radius", 1.5 * scene.guide.patch_radius_mm)
+    field.setNumber(tip, "Thickness", 2.0 * scene.guide.patch_radius_mm)
+    for axis, value in zip("XYZ", scene.guide.tip_mm):
+        field.setNumber(tip, f"{axis}Center", value)
+    field.setNumber(tip, "VIn", size.guide_mm)
+    field.setNumber(tip, "VOut", size.max_mm)
+    both = field.add("Min")
+    field.setNumbers(both, "FieldsList", [near, tip])
+    field.setAsBackgroundMesh(both)
+    for opt in ("MeshSizeFromPoints", "MeshSizeFromCurvature", "MeshSizeExtendFromBoundary"):
+        gmsh.option.setNumber(f"Mesh.{opt}", 0)
+
+
+def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Mesh the phantom; return vertices (n, 3), 10-node tets (m, 10) in gmsh order, tissue ids (m,), names.
+
+    Second order is straight-sided (Mesh.SecondOrderLinear = 1): gmsh's curved P2 tets come out
+    with inverted elements on this geometry.
+    """
+    if scene.phantom is None:
+        raise ValueError("scene has no [phantom] section")
+    with _gmsh_session() as gmsh:
+        gmsh.model.add("pelvis")
+        pieces = _fragment(gmsh.model.occ, _add_shapes(gmsh.model.occ, scene.phantom))
+        names = tuple(n for n in PRIORITY if pieces[n])
+        for i, name in enumerate(names):
+            gmsh.model.addPhysicalGroup(3, pieces[name], tag=i + 1, name=name)
+        _size_field(gmsh, scene, pieces)
+        gmsh.option.setNumber("Mesh.SecondOrderLinear", 1)
+        gmsh.option.setNumber("Mesh.Optimize", 1)
+        gmsh.model.mesh.generate(3)
+        gmsh.model.mesh.setOrder(2)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        index = np.zeros(int(node_tags.max()) + 1, dtype=np.int64)
+        index[node_tags.astype(np.int64)] = np.arange(node_tags.size)
+        tets, tissue = [], []
+        for i, name in enumerate(names):
+            for vol in pieces[name]:
+                etypes, _, enodes = gmsh.model.mesh.getElements(3, vol)
+                for etype, nodes in zip(etypes, enodes):
+                    if etype != 11:  # 11 = 10-node tetrahedron
+                        raise RuntimeError(f"unexpected gmsh element type {etype}")
+                    t = index[np.asarray(nodes, dtype=np.int64)].reshape(-1, 10)
+                    tets.append(t)
+                    tissue.append(np.full(len(t), i))
+    points = coords.reshape(-1, 3)
+    log.info("phantom: %d tets, %d nodes", sum(len(t) for t in tets), len(points))
+    return points, np.vstack(tets), np.concatenate(tissue), names

@@ -1,0 +1,237 @@
+"""Scene file: anatomy, tissues, needle guide, physical effects and the sweep grid.
+
+A scene is TOML validated by pydantic. Unknown keys and out-of-range values are errors that name
+the field (``SceneError``). Units: lengths in mm, moduli in kPa, densities in kg/m^3, angles in
+degrees.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+Vec3 = tuple[float, float, float]
+Positive = Annotated[float, Field(gt=0)]
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names the field."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Tissue(_Strict):
+    """Linear elastic tissue: E and nu, or shear-wave speed and density (paper eq. 1)."""
+
+    youngs_kpa: Positive | None = None
+    shear_wave_speed_m_s: Positive | None = None
+    density_kg_m3: Annotated[float, Field(gt=0, le=5000)] = 1008.0
+    poisson: Annotated[float, Field(ge=0.0, lt=0.5)] = 0.495
+    bone: bool = False  # held fixed when effects.fixed_bones is on
+
+    @model_validator(mode="after")
+    def _one_stiffness(self) -> Tissue:
+        if (self.youngs_kpa is None) == (self.shear_wave_speed_m_s is None):
+            raise ValueError("give exactly one of youngs_kpa or shear_wave_speed_m_s")
+        return self
+
+    @property
+    def youngs(self) -> float:
+        """Young's modulus in kPa; from v_s by eq. 1, E = 2 (1 + nu) v_s^2 rho (Pa -> kPa)."""
+        if self.youngs_kpa is not None:
+            return self.youngs_kpa
+        return 2.0 * (1.0 + self.poisson) * self.shear_wave_speed_m_s**2 * self.density_kg_m3 / 1e3
+
+
+class Phantom(_Strict):
+    """Synthetic male pelvis; x lateral (mirror plane x = 0), y posterior -> anterior, z up."""
+
+    block_mm: tuple[Positive, Positive, Positive] = (100.0, 90.0, 80.0)
+    prostate_center_mm: Vec3 = (0.0, 0.0, 35.0)
+    prostate_semi_axes_mm: tuple[Positive, Positive, Positive] = (20.0, 10.0, 10.0)
+    bladder_center_mm: Vec3 = (0.0, 4.0, 60.0)
+    bladder_radius_mm: Positive = 13.0
+    rectum_center_xy_mm: tuple[float, float] = (0.0, -21.0)
+    rectum_inner_radius_mm: Positive = 7.0
+    rectum_outer_radius_mm: Positive = 12.0
+    pubic_center_mm: Vec3 = (0.0, 30.0, 40.0)
+    pubic_radius_mm: Positive = 6.0
+    pubic_length_mm: Positive = 60.0
+    spine_box_mm: tuple[Vec3, Vec3] = ((-15.0, -41.0, 8.0), (15.0, -36.0, 72.0))
+
+    @model_validator(mode="after")
+    def _rectum_wall(self) -> Phantom:
+        if self.rectum_inner_radius_mm >= self.rectum_outer_radius_mm:
+            raise ValueError("rectum_inner_radius_mm must be below rectum_outer_radius_mm")
+        return self
+
+
+class UserMesh(_Strict):
+    """A user's tetrahedral mesh (anything meshio reads) with a cell tag per tissue."""
+
+    path: Path
+    tag_field: str = "gmsh:physical"
+    tags: dict[str, int]  # tissue name -> tag value
+
+
+class Guide(_Strict):
+    """Rigid needle-guide tip pushing the rectal wall.
+
+    The tip moves by d * a(beta), a(beta) = axis rotated by beta about tilt_normal. Wall nodes
+    within patch_radius_mm of the tip follow it with the rounded-tip weight
+    w(r) = cos^2(pi r / (2 R)), so the prescribed field is smooth at the patch rim.
+    """
+
+    tip_mm: Vec3 = (0.0, -14.0, 35.0)
+    axis: Vec3 = (0.0, 1.0, 0.0)
+    tilt_normal: Vec3 = (0.0, 0.0, 1.0)
+    patch_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
+
+    @model_validator(mode="after")
+    def _axes(self) -> Guide:
+        a, n = np.asarray(self.axis), np.asarray(self.tilt_normal)
+        if np.linalg.norm(a) < 1e-9 or np.linalg.norm(n) < 1e-9:
+            raise ValueError("axis and tilt_normal must be non-zero")
+        if abs(a @ n) > 1e-6 * np.linalg.norm(a) * np.linalg.norm(n):
+            raise ValueError("tilt_normal must be perpendicular to axis")
+        return self
+
+    def direction(self, angle_deg: float) -> np.ndarray:
+        """Unit push direction a(beta): axis rotated by beta about tilt_normal (Rodrigues)."""
+        a = np.asarray(self.axis) / np.linalg.norm(self.axis)
+        n = np.asarray(self.tilt_normal) / np.linalg.norm(self.tilt_normal)
+        b = np.deg2rad(angle_deg)
+        return a * np.cos(b) + np.cross(n, a) * np.sin(b)
+
+
+class Effects(_Strict):
+    """Physical effects; only those switched on are assembled."""
+
+    geometric_nonlinearity: bool = True
+    table: bool = True  # frictionless table: bottom face slides, u_z = 0
+    fixed_bones: bool = True  # pubic bone and spine held fixed
+    gravity: bool = False
+
+    @model_validator(mode="after")
+    def _constrained(self) -> Effects:
+        if not self.fixed_bones:
+            raise ValueError(
+                "fixed_bones=false leaves the phantom free to translate in x and y; "
+                "keep it on (the paper fixes the spine and pubic bone)"
+            )
+        return self
+
+
+class Sweep(_Strict):
+    """Grid of guide displacements x angles (paper: 40 x 21 = 840 cases)."""
+
+    displacement_step_mm: Annotated[float, Field(gt=0, le=10)] = 0.25
+    displacement_max_mm: Annotated[float, Field(gt=0, le=30)] = 10.0
+    angle_min_deg: Annotated[float, Field(ge=-45, le=45)] = -10.0
+    angle_max_deg: Annotated[float, Field(ge=-45, le=45)] = 10.0
+    angle_step_deg: Annotated[float, Field(gt=0)] = 1.0
+
+    @model_validator(mode="after")
+    def _grid(self) -> Sweep:
+        if self.angle_max_deg < self.angle_min_deg:
+            raise ValueError("angle_max_deg must not be below angle_min_deg")
+        if self.displacement_step_mm > self.displacement_max_mm:
+            raise ValueError("displacement_step_mm must not exceed displacement_max_mm")
+        return self
+
+    @property
+    def displacements_mm(self) -> np.ndarray:
+        n = int(round(self.displacement_max_mm / self.displacement_step_mm))
+        return self.displacement_step_mm * np.arange(1, n + 1)
+
+    @property
+    def angles_deg(self) -> np.ndarray:
+        n = int(round((self.angle_max_deg - self.angle_min_deg) / self.angle_step_deg))
+        return self.angle_min_deg + self.angle_step_deg * np.arange(n + 1)
+
+
+class MeshSize(_Strict):
+    """Target element sizes (mm) of the gmsh size field."""
+
+    max_mm: Annotated[float, Field(gt=0.05, le=100)] = 9.0
+    prostate_mm: Annotated[float, Field(gt=0.05, le=100)] = 3.0
+    guide_mm: Annotated[float, Field(gt=0.05, le=100)] = 1.5
+
+
+class Solver(_Strict):
+    """Newton and load-stepping controls."""
+
+    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-8
+    max_iterations: Annotated[int, Field(ge=1, le=500)] = 40
+    max_halvings: Annotated[int, Field(ge=0, le=12)] = 6
+    max_step_mm: Annotated[float, Field(gt=0, le=10)] = 0.25  # guide increment per load step
+
+
+class Scene(_Strict):
+    name: str = "scene"
+    phantom: Phantom | None = Phantom()
+    mesh_file: UserMesh | None = None
+    tissues: dict[str, Tissue]
+    guide: Guide = Guide()
+    effects: Effects = Effects()
+    sweep: Sweep = Sweep()
+    mesh: MeshSize = MeshSize()
+    solver: Solver = Solver()
+
+    @model_validator(mode="after")
+    def _geometry_source(self) -> Scene:
+        if self.mesh_file is not None:
+            missing = set(self.mesh_file.tags) - set(self.tissues)
+            if missing:
+                raise ValueError(f"mesh_file.tags names tissues not in [tissues]: {sorted(missing)}")
+        else:
+            missing = set(PHANTOM_TISSUES) - set(self.tissues)
+            if missing:
+                raise ValueError(f"the phantom needs [tissues.{'], ['.join(sorted(missing))}]")
+        return self
+
+    def sha256(self) -> str:
+        """Hash of the validated scene (canonical JSON), recorded with every artifact."""
+        blob = json.dumps(self.model_dump(mode="json"), sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()
+
+
+PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")
+
+
+def _field_path(loc: tuple) -> str:
+    return ".".join(str(p) for p in loc if p not in ("function-after",)) or "<root>"
+
+
+def parse_scene(data: dict, *, source: str = "scene") -> Scene:
+    """Validate a scene dict; raise SceneError naming each bad field."""
+    try:
+        return Scene.model_validate(data)
+    except ValidationError as exc:
+        lines = [f"{_field_path(e['loc'])}: {e['msg']}" for e in exc.errors()]
+        raise SceneError(f"{source}: " + "; ".join(lines)) from None
+
+
+def load_scene(path: str | Path, **overrides) -> Scene:
+    """Read and validate a TOML scene; relative mesh paths resolve against the scene's folder."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SceneError(f"{path}: no such scene file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML ({exc})") from None
+    if "mesh_file" in data and "path" in data["mesh_file"]:
+        mesh_path = Path(data["mesh_file"]["path"])
+        data["mesh_file"]["path"] = str(mesh_path if mesh_path.is_absolute() else path.parent / mesh_path)
+        data.setdefault("phantom", None)
+    data.update(overrides)
+    return parse_scene(data, source=str(path))

@@ -1,0 +1,237 @@
+"""Static solves: linear superposition, and Newton with line search and load stepping.
+
+Equilibrium r(u) = f_int(u) - f_ext = 0 on the free DOFs, u = g on the prescribed ones.
+Newton correction: K_II du_I = -(r_I + K_ID du_D), du_D = g - u_D (so the first iteration of a
+load step is the tangent predictor that carries the guide increment into the interior).
+K_II is solved by conjugate gradients preconditioned with the last PARDISO factorisation; a new
+factorisation is made only when CG needs more than `max_cg` iterations (the old one has drifted).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.sparse.linalg import LinearOperator, cg
+
+from . import elasticity as el
+from .assembly import apply_matrix, assemble_matrix, assemble_vector
+from .linsolve import Factor
+from .problem import Problem
+
+log = logging.getLogger(__name__)
+
+MAX_CG = 25
+CG_RTOL = 1e-4
+
+
+class ConvergenceError(RuntimeError):
+    """Newton did not converge or an element inverted (det F <= 0); nothing is written."""
+
+
+@dataclass
+class Stats:
+    iterations: int = 0
+    factorizations: int = 0
+    cg_iterations: int = 0
+    residual: float = 0.0  # final ||r_I|| / ||reactions||
+    min_det_f: float = 1.0
+    seconds: float = 0.0
+    halvings: int = 0
+
+
+@dataclass
+class PathState:
+    """What a displacement path carries from one converged step to the next."""
+
+    u: np.ndarray
+    d_mm: float = 0.0
+    history: list = field(default_factory=list)  # previous (d, u) for the secant predictor
+    factor: Factor | None = None
+
+
+def _evaluate(problem: Problem, u: np.ndarray, want_tangent: bool):
+    """Residual (n_dofs,), min det F and optionally element tangents at u."""
+    p = problem
+    H = el.displacement_gradient(p.G, p.element_displacement(u))
+    if p.nonlinear:
+        P, Finv, J = el.neo_hookean_stress(H, p.mu, p.lam)
+        min_j = float(J.min())
+        if not min_j > 0:
+            return None, min_j, None
+        Ke = el.neo_hookean_tangent(p.G, p.W, Finv, J, p.mu, p.lam) if want_tangent else None
+    else:
+        P, min_j = el.linear_stress(H, p.mu, p.lam), 1.0
+        Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam) if want_tangent else None
+    r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
+    if p.body_force is not None:
+        r -= p.body_force
+    return r, min_j, Ke
+
+
+def _solve_linearised(state: PathState, K, rhs, stats: Stats) -> np.ndarray:
+    """K du = rhs by CG preconditioned with the path's factorisation; refactorise if it drifted."""
+    if state.factor is not None and MAX_CG > 0:
+        M = LinearOperator(K.shape, matvec=state.factor.solve, dtype=np.float64)
+        count = [0]
+        du, info = cg(K, rhs, rtol=CG_RTOL, maxiter=MAX_CG, M=M, callback=lambda _: count.__setitem__(0, count[0] + 1))
+        stats.cg_iterations += count[0]
+        if info == 0:
+            return du
+    state.factor = Factor(K)
+    stats.factorizations += 1
+    return state.factor.solve(rhs)
+
+
+def newton_step(problem: Problem, state: PathState, g: np.ndarray, stats: Stats) -> np.ndarray:
+    """Converge to equilibrium with u_D = g, starting from state.u; raise ConvergenceError."""
+    p, cfg = problem, problem.scene.solver
+    free = p.free
+    u = state.u.copy()
+    r, min_j, Ke = _evaluate(p, u, want_tangent=True)
+    if r is None:
+        raise ConvergenceError(f"start state has det F = {min_j:.3g} <= 0")
+    for it in range(cfg.max_iterations + 1):
+        du_d = g - u
+        du_d[free] = 0.0
+        reactions = np.linalg.norm(np.delete(r, free)) + (np.linalg.norm(p.body_force) if p.body_force is not None else 0)
+        res = np.linalg.norm(r[free]) / max(reactions, 1e-30)
+        stats.residual, stats.min_det_f = res, min_j
+        prescribed_done = not np.any(du_d)
+        if prescribed_done and (res <= cfg.rtol or np.linalg.norm(r[free]) < 1e-13):
+            stats.iterations += it
+            return u
+        if it == cfg.max_iterations:
+            break
+        rhs = -(r + apply_matrix(p.pattern, Ke, du_d))[free]
+        step = du_d
+        step[free] = _solve_linearised(state, assemble_matrix(p.pattern, Ke), rhs, stats)
+        u, r, min_j, Ke = _line_search(p, u, step, r, prescribed_done)
+    raise ConvergenceError(
+        f"Newton did not converge in {cfg.max_iterations} iterations (relative residual {stats.residual:.2e})"
+    )
+
+
+def energy(p: Problem, u: np.ndarray) -> float:
+    """Total potential Pi(u) = stored energy - body-force work (mJ)."""
+    H = el.displacement_gradient(p.G, p.element_displacement(u))
+    stored = (el.neo_hookean_energy if p.nonlinear else el.linear_energy)(H, p.W, p.mu, p.lam)
+    return stored - (p.body_force @ u if p.body_force is not None else 0.0)
+
+
+def _line_search(p: Problem, u, step, r, prescribed_done: bool):
+    """Backtrack alpha = 1, 1/2, ... until det F > 0 everywhere and, once u_D = g, Armijo holds.
+
+    Equilibrium minimises the potential Pi, so with the constraints met the Newton direction must
+    lower Pi (Armijo, slope r . du); this guards against steps past a limit point, where the
+    residual norm alone can mislead. While a guide increment is still being applied, any admissible
+    (det F > 0) step is taken.
+    """
+    alpha, pi0, slope = 1.0, energy(p, u), float(r[p.free] @ step[p.free])
+    for _ in range(10):
+        trial = u + alpha * step
+        if not prescribed_done or energy(p, trial) <= pi0 + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * abs(pi0):
+            r_new, min_j, Ke = _evaluate(p, trial, want_tangent=True)
+            if r_new is not None:
+                return trial, r_new, min_j, Ke
+        alpha *= 0.5
+    raise ConvergenceError("line search found no step with det F > 0 that lowers the potential energy")
+
+
+def _predict(state: PathState, d_mm: float) -> np.ndarray:
+    """Secant extrapolation along the path from the last two converged states."""
+    if not state.history:
+        return state.u
+    d0, u0 = state.history[-1]
+    return state.u + (state.u - u0) * (d_mm - state.d_mm) / (state.d_mm - d0)
+
+
+def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, stats: Stats, depth: int = 0) -> None:
+    """Move the path state to guide displacement d_mm, halving the load step on failure."""
+    g = problem.dirichlet(d_mm, angle_deg)
+    guess = _predict(state, d_mm)
+    try:
+        trial = PathState(guess, state.d_mm, state.history, state.factor)
+        if problem.nonlinear and problem.min_jacobian(guess) <= 0:
+            trial.u = state.u
+        u = newton_step(problem, trial, g, stats)
+    except ConvergenceError:
+        state.factor = trial.factor
+        if depth >= problem.scene.solver.max_halvings:
+            raise
+        stats.halvings += 1
+        log.info("halving load step %.4g -> %.4g mm", state.d_mm, d_mm)
+        advance(problem, state, 0.5 * (state.d_mm + d_mm), angle_deg, stats, depth + 1)
+        advance(problem, state, d_mm, angle_deg, stats, depth + 1)
+        return
+    state.factor = trial.factor
+    state.history = [(state.d_mm, state.u)]
+    state.u, state.d_mm = u, d_mm
+
+
+def initial_state(problem: Problem) -> PathState:
+    """Reference state, or the gravity-loaded state when gravity is on (loaded in 4 steps)."""
+    state = PathState(np.zeros(problem.n_dofs))
+    if problem.body_force is None:
+        return state
+    full = problem.body_force
+    for s in (0.25, 0.5, 0.75, 1.0):
+        scaled = replace(problem, body_force=s * full)
+        state.u = newton_step(scaled, state, np.zeros(problem.n_dofs), Stats())
+    state.history = []
+    return state
+
+
+def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: PathState | None = None):
+    """Yield (d_mm, u (n_nodes, 3), Stats) for increasing guide displacements at one angle."""
+    state = state or initial_state(problem)
+    max_step = problem.scene.solver.max_step_mm
+    for d in displacements_mm:
+        stats, t0 = Stats(), time.perf_counter()
+        n_sub = max(1, int(np.ceil(abs(d - state.d_mm) / max_step - 1e-9)))
+        for target in np.linspace(state.d_mm, d, n_sub + 1)[1:]:
+            advance(problem, state, float(target), angle_deg, stats)
+        stats.seconds = time.perf_counter() - t0
+        yield float(d), state.u.reshape(-1, 3).copy(), stats
+
+
+def linear_modes(problem: Problem):
+    """Unit-displacement fields for the linear model: u(d, beta) = u_0 + d (cos b U_axis + sin b U_perp).
+
+    One factorisation of K_II serves every case (superposition); u_0 is the gravity sag or zero.
+    """
+    p = problem
+    Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+    factor = Factor(assemble_matrix(p.pattern, Ke))
+    fields = []
+    for beta in (0.0, 90.0):
+        g = p.dirichlet(1.0, beta)
+        u = g.copy()
+        u[p.free] = factor.solve(-apply_matrix(p.pattern, Ke, g)[p.free])
+        fields.append(u)
+    u0 = np.zeros(p.n_dofs)
+    if p.body_force is not None:
+        u0[p.free] = factor.solve(p.body_force[p.free])
+    return u0, fields[0], fields[1]
+
+
+def solve_case(problem: Problem, displacement_mm: float, angle_deg: float, step_mm: float | None = None):
+    """One case: (u (n_nodes, 3), Stats). Nonlinear cases are load-stepped from zero in steps <= step_mm."""
+    t0 = time.perf_counter()
+    if not problem.nonlinear:
+        u0, ua, ub = linear_modes(problem)
+        b = np.deg2rad(angle_deg)
+        u = u0 + displacement_mm * (np.cos(b) * ua + np.sin(b) * ub)
+        return u.reshape(-1, 3), Stats(factorizations=1, seconds=time.perf_counter() - t0)
+    if step_mm is not None:
+        problem = replace(problem, scene=problem.scene.model_copy(update={"solver": problem.scene.solver.model_copy(update={"max_step_mm": step_mm})}))
+    total = Stats()
+    u = np.zeros((len(problem.mesh.nodes), 3))
+    for _, u, stats in solve_path(problem, [displacement_mm], angle_deg):
+        for name in ("iterations", "factorizations", "cg_iterations", "halvings"):
+            setattr(total, name, getattr(total, name) + getattr(stats, name))
+        total.residual, total.min_det_f = stats.residual, stats.min_det_f
+    total.seconds = time.perf_counter() - t0
+    return u, total

@@ -1,0 +1,235 @@
+"""Snapshot sweep over guide displacement x angle: resumable, atomic, on a process pool or Dask.
+
+Layout of the output folder:
+    mesh.vtu, mesh.json          the P2 mesh with tissue tags and node sets (meshio)
+    snapshots/a{i}_d{j}.npz      one case: displacement (n_nodes, 3) float64 mm + solver stats
+    manifest.json                scene, scene hash, grid, counts and per-snapshot stats
+Each nonlinear angle is one path, warm-started from one displacement to the next. A path that was
+interrupted resumes from its last written snapshot; finished snapshots are never recomputed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from functools import lru_cache
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from . import mesh as meshmod
+from .io import atomic_savez, atomic_write_json, mesh_for_scene
+from .problem import build_problem
+from .scene import Scene, SceneError, parse_scene
+from .solve import ConvergenceError, PathState, Stats, linear_modes, solve_path
+
+log = logging.getLogger(__name__)
+MESH_NAME = "mesh.vtu"
+
+
+@dataclass(frozen=True)
+class Case:
+    angle_index: int
+    displacement_index: int
+    angle_deg: float
+    displacement_mm: float
+
+    @property
+    def name(self) -> str:
+        return f"a{self.angle_index:03d}_d{self.displacement_index:03d}.npz"
+
+
+def grid(scene: Scene) -> list[list[Case]]:
+    """Cases grouped by angle (one path each), displacements increasing."""
+    sw = scene.sweep
+    return [
+        [Case(i, j, float(b), float(d)) for j, d in enumerate(sw.displacements_mm)]
+        for i, b in enumerate(sw.angles_deg)
+    ]
+
+
+def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats) -> None:
+    atomic_savez(
+        out / "snapshots" / case.name,
+        displacement=displacement,
+        displacement_mm=case.displacement_mm,
+        angle_deg=case.angle_deg,
+        newton_iterations=stats.iterations,
+        factorizations=stats.factorizations,
+        cg_iterations=stats.cg_iterations,
+        residual=stats.residual,
+        min_det_f=stats.min_det_f,
+        seconds=stats.seconds,
+    )
+
+
+def prepare(scene: Scene, out: Path) -> meshmod.TetMesh:
+    """Create the output folder and its mesh, or check that it belongs to this scene (resume)."""
+    out.mkdir(parents=True, exist_ok=True)
+    stamp = out / "scene.json"
+    if stamp.exists():
+        import json
+
+        old = json.loads(stamp.read_text())
+        if old["scene_sha256"] != scene.sha256():
+            raise SceneError(f"{out} holds a sweep of another scene (sha256 {old['scene_sha256'][:12]}); use a new --out")
+    mesh_path = out / MESH_NAME
+    if mesh_path.exists():
+        mesh = meshmod.load(mesh_path)
+    else:
+        mesh = mesh_for_scene(scene)
+        meshmod.save(mesh, mesh_path)
+    atomic_write_json(stamp, {"scene_sha256": scene.sha256(), "scene": scene.model_dump(mode="json")})
+    return mesh
+
+
+@lru_cache(maxsize=2)
+def _problem(scene_json: str, mesh_path: str):
+    """Per-process cache: workers build the problem once and reuse it for every path they get."""
+    scene = parse_scene(__import__("json").loads(scene_json))
+    return build_problem(scene, meshmod.load(mesh_path))
+
+
+def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[Case]]:
+    """Start after the last contiguous finished snapshot of the path, warm from its displacement."""
+    done = 0
+    while done < len(path) and (out / "snapshots" / path[done].name).exists():
+        done += 1
+    if done == 0:
+        return None, path
+
+    def load(case: Case) -> np.ndarray:
+        with np.load(out / "snapshots" / case.name) as z:
+            return z["displacement"].ravel()
+
+    state = PathState(load(path[done - 1]), path[done - 1].displacement_mm)
+    if done >= 2:
+        state.history = [(path[done - 2].displacement_mm, load(path[done - 2]))]
+    return state, path[done:]
+
+
+def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
+    """Solve the pending cases of one angle, writing each snapshot as soon as it converges."""
+    out = Path(out)
+    problem = _problem(scene_json, str(out / MESH_NAME))
+    state, todo = _resume_state(out, path)
+    if not todo:
+        return {"written": 0}
+    written = 0
+    try:
+        steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state)
+        for case, (_, u, stats) in zip(todo, steps):
+            write_snapshot(out, case, u, stats)
+            written += 1
+    except ConvergenceError as exc:
+        failed = todo[written]
+        return {"written": written, "error": f"angle {failed.angle_deg:g} deg, {failed.displacement_mm:g} mm: {exc}"}
+    return {"written": written}
+
+
+def _write_linear(scene: Scene, mesh: meshmod.TetMesh, out: Path, pending: list[Case], progress) -> None:
+    """Linear model: one factorisation, two unit solves, every snapshot by superposition."""
+    t0 = time.perf_counter()
+    u0, ua, ub = linear_modes(build_problem(scene, mesh))
+    per = (time.perf_counter() - t0) / max(len(pending), 1)
+    for case in pending:
+        b = np.deg2rad(case.angle_deg)
+        u = (u0 + case.displacement_mm * (np.cos(b) * ua + np.sin(b) * ub)).reshape(-1, 3)
+        write_snapshot(out, case, u, Stats(iterations=1, seconds=per))
+        progress.update(1)
+
+
+def _count(out: Path) -> int:
+    return sum(1 for _ in (out / "snapshots").glob("a*_d*.npz")) if (out / "snapshots").exists() else 0
+
+
+def _run_pool(scene_json: str, out: Path, paths, workers: int, scheduler: str | None, progress) -> list[str]:
+    """Run the paths on a local process pool or a Dask cluster; show progress from files written."""
+    if scheduler:
+        from distributed import Client
+
+        client = Client(scheduler)
+        futures = [client.submit(run_path, scene_json, str(out), p, pure=False) for p in paths]
+        done = lambda: all(f.done() for f in futures)  # noqa: E731
+        results = lambda: client.gather(futures)  # noqa: E731
+        closer = client.close
+    else:
+        saved = {k: os.environ.get(k) for k in ("MKL_NUM_THREADS", "OMP_NUM_THREADS")}
+        os.environ.update(MKL_NUM_THREADS="1", OMP_NUM_THREADS="1")  # one core per path
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"))
+        for k, v in saved.items():
+            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
+        futures = [pool.submit(run_path, scene_json, str(out), p) for p in paths]
+        done = lambda: all(f.done() for f in futures)  # noqa: E731
+        results = lambda: [f.result() for f in futures]  # noqa: E731
+        closer = pool.shutdown
+    start = _count(out)
+    try:
+        while not done():
+            time.sleep(0.5)
+            progress.update(_count(out) - start - progress.n + progress.initial)
+        return [r["error"] for r in results() if "error" in r]
+    finally:
+        progress.update(_count(out) - start - progress.n + progress.initial)
+        closer()
+
+
+def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str | None = None) -> dict:
+    """Solve every case of the scene's grid that is not on disk yet; return the manifest."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    mesh = prepare(scene, out)
+    paths = grid(scene)
+    total = sum(len(p) for p in paths)
+    pending = [[c for c in p if not (out / "snapshots" / c.name).exists()] for p in paths]
+    n_pending = sum(len(p) for p in pending)
+    t0 = time.perf_counter()
+    errors: list[str] = []
+    with tqdm(total=total, initial=total - n_pending, unit="snap", desc=scene.name) as progress:
+        if not scene.effects.geometric_nonlinearity:
+            _write_linear(scene, mesh, out, [c for p in pending for c in p], progress)
+        elif n_pending:
+            todo = [full for full, p in zip(paths, pending) if p]
+            errors = _run_pool(scene.model_dump_json(), out, todo, workers, scheduler, progress)
+    manifest = write_manifest(scene, mesh, out, paths, seconds=time.perf_counter() - t0, errors=errors)
+    return manifest
+
+
+def write_manifest(scene: Scene, mesh: meshmod.TetMesh, out: Path, paths, *, seconds: float, errors: list[str]) -> dict:
+    rows = []
+    for case in (c for p in paths for c in p):
+        f = out / "snapshots" / case.name
+        if f.exists():
+            with np.load(f) as z:
+                rows.append({
+                    "file": f"snapshots/{case.name}",
+                    "displacement_mm": case.displacement_mm,
+                    "angle_deg": case.angle_deg,
+                    "newton_iterations": int(z["newton_iterations"]),
+                    "residual": float(z["residual"]),
+                    "min_det_f": float(z["min_det_f"]),
+                    "seconds": float(z["seconds"]),
+                })
+    manifest = {
+        "scene_name": scene.name,
+        "scene_sha256": scene.sha256(),
+        "mesh": MESH_NAME,
+        "n_nodes": int(len(mesh.nodes)),
+        "n_tets": int(len(mesh.tets)),
+        "n_dofs": int(3 * len(mesh.nodes)),
+        "nonlinear": scene.effects.geometric_nonlinearity,
+        "angles_deg": scene.sweep.angles_deg.tolist(),
+        "displacements_mm": scene.sweep.displacements_mm.tolist(),
+        "n_expected": sum(len(p) for p in paths),
+        "n_done": len(rows),
+        "wall_seconds_this_run": seconds,
+        "errors": errors,
+        "snapshots": rows,
+    }
+    atomic_write_json(out / "manifest.json", manifest)
+    return manifest
