@@ -35,6 +35,13 @@ def _gmsh_session():
         gmsh.finalize()
 
 
+def _sphere(occ, centre, radius: float) -> int:
+    """A sphere with its poles on the x axis, so the mirror plane x = 0 cuts its equator, not its poles."""
+    tag = occ.addSphere(*centre, radius)
+    occ.rotate([(3, tag)], *centre, 0.0, 1.0, 0.0, np.pi / 2)
+    return tag
+
+
 def _add_shapes(occ, ph: Phantom) -> dict[str, int]:
     """Add one OCC volume per tissue; the lumen is already cut from the block."""
     bx, by, bz = ph.block_mm
@@ -44,9 +51,9 @@ def _add_shapes(occ, ph: Phantom) -> dict[str, int]:
     rectum = occ.addCylinder(rx, ry, 0.0, 0.0, 0.0, bz, ph.rectum_outer_radius_mm)
     (block_cut, _) = occ.cut([(3, block)], [(3, lumen)], removeTool=False)
     (wall, _) = occ.cut([(3, rectum)], [(3, lumen)])
-    prostate = occ.addSphere(*ph.prostate_center_mm, 1.0)
+    prostate = _sphere(occ, ph.prostate_center_mm, 1.0)
     occ.dilate([(3, prostate)], *ph.prostate_center_mm, *ph.prostate_semi_axes_mm)
-    bladder = occ.addSphere(*ph.bladder_center_mm, ph.bladder_radius_mm)
+    bladder = _sphere(occ, ph.bladder_center_mm, ph.bladder_radius_mm)
     px, py, pz = ph.pubic_center_mm
     pubic = occ.addCylinder(px - ph.pubic_length_mm / 2, py, pz, ph.pubic_length_mm, 0, 0, ph.pubic_radius_mm)
     (lo, hi) = np.asarray(ph.spine_box_mm)
@@ -59,6 +66,34 @@ def _add_shapes(occ, ph: Phantom) -> dict[str, int]:
         "pubic_bone": pubic,
         "spine": spine,
     }
+
+
+def is_symmetric(scene: Scene) -> bool:
+    """True when phantom and guide tip are mirror-symmetric about x = 0 (then half is meshed and mirrored)."""
+    ph = scene.phantom
+    xs = [ph.prostate_center_mm[0], ph.bladder_center_mm[0], ph.rectum_center_xy_mm[0], ph.pubic_center_mm[0]]
+    spine = np.asarray(ph.spine_box_mm)
+    return all(x == 0 for x in xs) and spine[0, 0] == -spine[1, 0] and scene.guide.tip_mm[0] == 0
+
+
+def _keep_half(occ, shapes: dict[str, int], ph: Phantom) -> dict[str, int]:
+    """Intersect every shape with the half-space x >= 0."""
+    bx, by, bz = ph.block_mm
+    halves = {}
+    for name, tag in shapes.items():
+        box = occ.addBox(0.0, -by, -1.0, bx, 2 * by, bz + 2)
+        (out, _) = occ.intersect([(3, tag)], [(3, box)])
+        halves[name] = out[0][1]
+    return halves
+
+
+def _mirror(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reflect a half mesh (x >= 0) across x = 0, sharing the nodes on the plane."""
+    on_plane = np.abs(points[:, 0]) <= 1e-9 * np.abs(points).max()
+    image = np.arange(len(points)) + len(points)
+    image[on_plane] = np.flatnonzero(on_plane)
+    mirrored = points * np.array([-1.0, 1.0, 1.0])
+    return np.vstack([points, mirrored]), np.vstack([tets, image[tets]])
 
 
 def _fragment(occ, shapes: dict[str, int]) -> dict[str, list[int]]:
@@ -105,7 +140,10 @@ def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
 
 
 def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
-    """Mesh the phantom; return vertices (n, 3), 10-node tets (m, 10) in gmsh order, tissue ids (m,), names.
+    """Mesh the phantom; return nodes (n, 3), 10-node tets (m, 10) in gmsh order, tissue ids (m,), names.
+
+    A mirror-symmetric scene is meshed on x >= 0 and reflected, so the mesh itself is symmetric
+    and beta -> -beta mirrors the discrete solution exactly.
 
     Second order is straight-sided (Mesh.SecondOrderLinear = 1): gmsh's curved P2 tets come out
     with inverted elements on this geometry.
@@ -114,7 +152,11 @@ def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tup
         raise ValueError("scene has no [phantom] section")
     with _gmsh_session() as gmsh:
         gmsh.model.add("pelvis")
-        pieces = _fragment(gmsh.model.occ, _add_shapes(gmsh.model.occ, scene.phantom))
+        symmetric = is_symmetric(scene)
+        shapes = _add_shapes(gmsh.model.occ, scene.phantom)
+        if symmetric:
+            shapes = _keep_half(gmsh.model.occ, shapes, scene.phantom)
+        pieces = _fragment(gmsh.model.occ, shapes)
         names = tuple(n for n in PRIORITY if pieces[n])
         for i, name in enumerate(names):
             gmsh.model.addPhysicalGroup(3, pieces[name], tag=i + 1, name=name)
@@ -136,6 +178,9 @@ def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tup
                     t = index[np.asarray(nodes, dtype=np.int64)].reshape(-1, 10)
                     tets.append(t)
                     tissue.append(np.full(len(t), i))
-    points = coords.reshape(-1, 3)
-    log.info("phantom: %d tets, %d nodes", sum(len(t) for t in tets), len(points))
-    return points, np.vstack(tets), np.concatenate(tissue), names
+    points, tets, tissue = coords.reshape(-1, 3), np.vstack(tets), np.concatenate(tissue)
+    if symmetric:
+        points, tets = _mirror(points, tets)
+        tissue = np.concatenate([tissue, tissue])
+    log.info("phantom: %d tets, %d nodes (mirrored half: %s)", len(tets), len(points), symmetric)
+    return points, tets, tissue, names

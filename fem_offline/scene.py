@@ -169,7 +169,7 @@ class MeshSize(_Strict):
 class Solver(_Strict):
     """Newton and load-stepping controls."""
 
-    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-8
+    rtol: Annotated[float, Field(gt=0, lt=1)] = 1e-6  # ||r_free|| / ||reactions||
     max_iterations: Annotated[int, Field(ge=1, le=500)] = 40
     max_halvings: Annotated[int, Field(ge=0, le=12)] = 6
     max_step_mm: Annotated[float, Field(gt=0, le=10)] = 0.25  # guide increment per load step

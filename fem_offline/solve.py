@@ -23,8 +23,8 @@ from .problem import Problem
 
 log = logging.getLogger(__name__)
 
-MAX_CG = 25
-CG_RTOL = 1e-4
+MAX_CG = 12
+CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
 
 
 class ConvergenceError(RuntimeError):
@@ -141,11 +141,14 @@ def _line_search(p: Problem, u, step, r, prescribed_done: bool):
 
 
 def _predict(state: PathState, d_mm: float) -> np.ndarray:
-    """Secant extrapolation along the path from the last two converged states."""
-    if not state.history:
-        return state.u
-    d0, u0 = state.history[-1]
-    return state.u + (state.u - u0) * (d_mm - state.d_mm) / (state.d_mm - d0)
+    """Extrapolate along the path (Lagrange, through up to three converged states)."""
+    ds = [d for d, _ in state.history] + [state.d_mm]
+    us = [u for _, u in state.history] + [state.u]
+    guess = np.zeros_like(state.u)
+    for i, (di, ui) in enumerate(zip(ds, us)):
+        weight = np.prod([(d_mm - dj) / (di - dj) for j, dj in enumerate(ds) if j != i])
+        guess += weight * ui
+    return guess
 
 
 def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, stats: Stats, depth: int = 0) -> None:
@@ -167,7 +170,7 @@ def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, s
         advance(problem, state, d_mm, angle_deg, stats, depth + 1)
         return
     state.factor = trial.factor
-    state.history = [(state.d_mm, state.u)]
+    state.history = [*state.history[-1:], (state.d_mm, state.u)]
     state.u, state.d_mm = u, d_mm
 
 

@@ -107,8 +107,7 @@ def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[C
             return z["displacement"].ravel()
 
     state = PathState(load(path[done - 1]), path[done - 1].displacement_mm)
-    if done >= 2:
-        state.history = [(path[done - 2].displacement_mm, load(path[done - 2]))]
+    state.history = [(c.displacement_mm, load(c)) for c in path[max(0, done - 3) : done - 1]]
     return state, path[done:]
 
 

@@ -1,0 +1,30 @@
+from pathlib import Path
+
+import pytest
+
+from fem_offline.io import mesh_for_scene
+from fem_offline.problem import build_problem
+from fem_offline.scene import load_scene
+
+SCENES = Path(__file__).resolve().parents[2] / "fem_offline" / "scenes"
+
+
+@pytest.fixture(scope="session")
+def tiny_scene():
+    return load_scene(SCENES / "tiny.toml")
+
+
+@pytest.fixture(scope="session")
+def tiny_mesh(tiny_scene):
+    return mesh_for_scene(tiny_scene)
+
+
+@pytest.fixture(scope="session")
+def tiny_problem(tiny_scene, tiny_mesh):
+    return build_problem(tiny_scene, tiny_mesh)
+
+
+@pytest.fixture(scope="session")
+def tiny_linear_problem(tiny_scene, tiny_mesh):
+    scene = tiny_scene.model_copy(update={"effects": tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})})
+    return build_problem(scene, tiny_mesh)

@@ -1,0 +1,76 @@
+"""Scene files: defaults from the paper, eq. 1, and errors that name the bad field."""
+
+import numpy as np
+import pytest
+
+from fem_offline.scene import SceneError, Tissue, load_scene, parse_scene
+
+from .conftest import SCENES
+
+
+def test_default_scene_is_the_papers_setup():
+    scene = load_scene(SCENES / "default.toml")
+    assert scene.tissues["adipose"].youngs == pytest.approx(10.63)
+    assert scene.tissues["prostate"].poisson == 0.495
+    assert len(scene.sweep.angles_deg) * len(scene.sweep.displacements_mm) == 840
+    assert scene.sweep.displacements_mm[0] == 0.25 and scene.sweep.displacements_mm[-1] == 10.0
+    assert scene.effects.geometric_nonlinearity and not scene.effects.gravity
+
+
+def test_youngs_from_shear_wave_speed_eq1():
+    """E = 2 (1 + nu) v_s^2 rho: prostate v_s = 5.03 m/s, rho = 1008 -> 25.38 kPa (Pa -> kPa)."""
+    t = Tissue(shear_wave_speed_m_s=5.03, density_kg_m3=1008.0, poisson=0.495)
+    assert t.youngs == pytest.approx(2 * 1.495 * 5.03**2 * 1008 / 1000, rel=1e-12)
+
+
+def _minimal(**extra):
+    base = {name: {"youngs_kpa": 10.0} for name in ("adipose", "rectal_wall", "prostate", "bladder")}
+    base |= {"pubic_bone": {"youngs_kpa": 2500.0, "bone": True}, "spine": {"youngs_kpa": 2500.0, "bone": True}}
+    return {"tissues": base, **extra}
+
+
+@pytest.mark.parametrize(
+    ("patch", "field"),
+    [
+        ({"sweep": {"displacement_step_mm": -1}}, "sweep.displacement_step_mm"),
+        ({"guide": {"patch_radius_mm": 0}}, "guide.patch_radius_mm"),
+        ({"effects": {"gravity": True, "wind": True}}, "effects.wind"),
+        ({"colour": "red"}, "colour"),
+        ({"mesh": {"max_mm": "big"}}, "mesh.max_mm"),
+        ({"guide": {"axis": [0, 0, 1]}}, "guide"),
+    ],
+)
+def test_bad_field_is_named(patch, field):
+    with pytest.raises(SceneError, match=field.replace(".", r"\.")):
+        parse_scene(_minimal(**patch))
+
+
+def test_bad_poisson_ratio_names_tissue():
+    data = _minimal()
+    data["tissues"]["prostate"]["poisson"] = 0.5
+    with pytest.raises(SceneError, match=r"tissues\.prostate\.poisson"):
+        parse_scene(data)
+
+
+def test_missing_tissue_is_named():
+    data = _minimal()
+    del data["tissues"]["bladder"]
+    with pytest.raises(SceneError, match="bladder"):
+        parse_scene(data)
+
+
+def test_guide_direction_rotates_in_the_tilt_plane():
+    scene = parse_scene(_minimal())
+    a = scene.guide.direction(10.0)
+    assert np.linalg.norm(a) == pytest.approx(1.0)
+    assert a[2] == pytest.approx(0.0)
+    assert np.degrees(np.arctan2(-a[0], a[1])) == pytest.approx(10.0)
+
+
+def test_toml_errors_are_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = \n")
+    with pytest.raises(SceneError, match="not valid TOML"):
+        load_scene(bad)
+    with pytest.raises(SceneError, match="no such scene file"):
+        load_scene(tmp_path / "missing.toml")
