@@ -67,7 +67,7 @@ def from_vertices(points: np.ndarray, tets4: np.ndarray, tissue: np.ndarray, nam
 
 
 def save(mesh: TetMesh, path: str | Path) -> Path:
-    """Write the mesh with meshio (.vtu, .msh, .xdmf); tissue names go to a .json sidecar. Atomic."""
+    """Write the mesh with meshio (.vtu, .msh, .xdmf); tissue names go to a .json sidecar. Atomic but for .xdmf."""
     import meshio
 
     path = Path(path)
@@ -80,7 +80,8 @@ def save(mesh: TetMesh, path: str | Path) -> Path:
     if path.suffix == ".msh":
         cell_data = {"gmsh:physical": [mesh.tissue + 1], "gmsh:geometrical": [mesh.tissue + 1]}
     out = meshio.Mesh(mesh.nodes, [("tetra10", mesh.tets)], point_data=point_data, cell_data=cell_data)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    # XDMF names its .h5 sidecar after the file, so it cannot be renamed; it is written in place.
+    tmp = path if path.suffix == ".xdmf" else path.with_name(f".{path.stem}.tmp{path.suffix}")
     meshio.write(tmp, out, **({"file_format": "gmsh22", "binary": True} if path.suffix == ".msh" else {}))
     os.replace(tmp, path)
     _write_json(path.with_suffix(".json"), {"tissue_names": list(mesh.tissue_names)})
