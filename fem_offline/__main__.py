@@ -70,12 +70,8 @@ def _solve(args) -> None:
         displacement=u,
         displacement_mm=args.displacement_mm,
         angle_deg=args.angle_deg,
-        newton_iterations=stats.iterations,
-        factorizations=stats.factorizations,
-        residual=stats.residual,
-        min_det_f=stats.min_det_f,
-        seconds=stats.seconds,
         scene_sha256=scene.sha256(),
+        **stats.record(),
     )
     print(
         f"{args.out}: {len(mesh.nodes)} nodes, max |u| {np.linalg.norm(u, axis=1).max():.4f} mm, "

@@ -161,9 +161,9 @@ class Sweep(_Strict):
 class MeshSize(_Strict):
     """Target element sizes (mm) of the gmsh size field."""
 
-    max_mm: Annotated[float, Field(gt=0.05, le=100)] = 9.0
-    prostate_mm: Annotated[float, Field(gt=0.05, le=100)] = 3.0
-    guide_mm: Annotated[float, Field(gt=0.05, le=100)] = 1.5
+    max_mm: Annotated[float, Field(gt=0.05, le=100)] = 12.0
+    prostate_mm: Annotated[float, Field(gt=0.05, le=100)] = 4.0
+    guide_mm: Annotated[float, Field(gt=0.05, le=100)] = 2.0
 
 
 class Solver(_Strict):

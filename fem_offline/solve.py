@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, cg
@@ -41,6 +42,17 @@ class Stats:
     seconds: float = 0.0
     halvings: int = 0
 
+    def record(self) -> dict:
+        """The fields a snapshot file stores."""
+        return {
+            "newton_iterations": self.iterations,
+            "factorizations": self.factorizations,
+            "cg_iterations": self.cg_iterations,
+            "residual": self.residual,
+            "min_det_f": self.min_det_f,
+            "seconds": self.seconds,
+        }
+
 
 @dataclass
 class PathState:
@@ -52,23 +64,40 @@ class PathState:
     factor: Factor | None = None
 
 
-def _evaluate(problem: Problem, u: np.ndarray, want_tangent: bool):
-    """Residual (n_dofs,), min det F and optionally element tangents at u."""
-    p = problem
+class Eval(NamedTuple):
+    """What one pass over the quadrature points gives: residual (n_dofs,), min det F, potential, and
+    what the tangent needs (F^-1, J), so the tangent is built only when a correction follows."""
+
+    r: np.ndarray | None
+    min_j: float
+    pi: float
+    Finv: np.ndarray | None = None
+    J: np.ndarray | None = None
+
+
+def _evaluate(p: Problem, u: np.ndarray) -> Eval:
+    """Residual r = f_int(u) - f_ext, min det F and the potential Pi(u); r is None if det F <= 0."""
     H = el.displacement_gradient(p.G, p.element_displacement(u))
+    work = p.body_force @ u if p.body_force is not None else 0.0
     if p.nonlinear:
         P, Finv, J = el.neo_hookean_stress(H, p.mu, p.lam)
         min_j = float(J.min())
         if not min_j > 0:
-            return None, min_j, None
-        Ke = el.neo_hookean_tangent(p.G, p.W, Finv, J, p.mu, p.lam) if want_tangent else None
+            return Eval(None, min_j, np.inf)
+        pi = el.neo_hookean_energy(H, p.W, p.mu, p.lam) - work
     else:
-        P, min_j = el.linear_stress(H, p.mu, p.lam), 1.0
-        Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam) if want_tangent else None
+        P, min_j, Finv, J = el.linear_stress(H, p.mu, p.lam), 1.0, None, None
+        pi = el.linear_energy(H, p.W, p.mu, p.lam) - work
     r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
     if p.body_force is not None:
         r -= p.body_force
-    return r, min_j, Ke
+    return Eval(r, min_j, pi, Finv, J)
+
+
+def _tangent(p: Problem, ev: Eval) -> np.ndarray:
+    if p.nonlinear:
+        return el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam)
+    return el.linear_stiffness(p.G, p.W, p.mu, p.lam)
 
 
 def _solve_linearised(state: PathState, K, rhs, stats: Stats) -> np.ndarray:
@@ -90,38 +119,32 @@ def newton_step(problem: Problem, state: PathState, g: np.ndarray, stats: Stats)
     p, cfg = problem, problem.scene.solver
     free = p.free
     u = state.u.copy()
-    r, min_j, Ke = _evaluate(p, u, want_tangent=True)
-    if r is None:
-        raise ConvergenceError(f"start state has det F = {min_j:.3g} <= 0")
+    ev = _evaluate(p, u)
+    if ev.r is None:
+        raise ConvergenceError(f"start state has det F = {ev.min_j:.3g} <= 0")
     for it in range(cfg.max_iterations + 1):
         du_d = g - u
         du_d[free] = 0.0
-        reactions = np.linalg.norm(np.delete(r, free)) + (np.linalg.norm(p.body_force) if p.body_force is not None else 0)
-        res = np.linalg.norm(r[free]) / max(reactions, 1e-30)
-        stats.residual, stats.min_det_f = res, min_j
+        reactions = np.linalg.norm(np.delete(ev.r, free)) + (np.linalg.norm(p.body_force) if p.body_force is not None else 0)
+        res = np.linalg.norm(ev.r[free]) / max(reactions, 1e-30)
+        stats.residual, stats.min_det_f = res, ev.min_j
         prescribed_done = not np.any(du_d)
-        if prescribed_done and (res <= cfg.rtol or np.linalg.norm(r[free]) < 1e-13):
+        if prescribed_done and (res <= cfg.rtol or np.linalg.norm(ev.r[free]) < 1e-13):
             stats.iterations += it
             return u
         if it == cfg.max_iterations:
             break
-        rhs = -(r + apply_matrix(p.pattern, Ke, du_d))[free]
+        Ke = _tangent(p, ev)
+        rhs = -(ev.r + apply_matrix(p.pattern, Ke, du_d))[free]
         step = du_d
         step[free] = _solve_linearised(state, assemble_matrix(p.pattern, Ke), rhs, stats)
-        u, r, min_j, Ke = _line_search(p, u, step, r, prescribed_done)
+        u, ev = _line_search(p, u, step, ev, prescribed_done)
     raise ConvergenceError(
         f"Newton did not converge in {cfg.max_iterations} iterations (relative residual {stats.residual:.2e})"
     )
 
 
-def energy(p: Problem, u: np.ndarray) -> float:
-    """Total potential Pi(u) = stored energy - body-force work (mJ)."""
-    H = el.displacement_gradient(p.G, p.element_displacement(u))
-    stored = (el.neo_hookean_energy if p.nonlinear else el.linear_energy)(H, p.W, p.mu, p.lam)
-    return stored - (p.body_force @ u if p.body_force is not None else 0.0)
-
-
-def _line_search(p: Problem, u, step, r, prescribed_done: bool):
+def _line_search(p: Problem, u, step, ev: Eval, prescribed_done: bool):
     """Backtrack alpha = 1, 1/2, ... until det F > 0 everywhere and, once u_D = g, Armijo holds.
 
     Equilibrium minimises the potential Pi, so with the constraints met the Newton direction must
@@ -129,13 +152,13 @@ def _line_search(p: Problem, u, step, r, prescribed_done: bool):
     residual norm alone can mislead. While a guide increment is still being applied, any admissible
     (det F > 0) step is taken.
     """
-    alpha, pi0, slope = 1.0, energy(p, u), float(r[p.free] @ step[p.free])
+    alpha, slope = 1.0, float(ev.r[p.free] @ step[p.free])
     for _ in range(10):
         trial = u + alpha * step
-        if not prescribed_done or energy(p, trial) <= pi0 + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * abs(pi0):
-            r_new, min_j, Ke = _evaluate(p, trial, want_tangent=True)
-            if r_new is not None:
-                return trial, r_new, min_j, Ke
+        new = _evaluate(p, trial)
+        armijo = new.pi <= ev.pi + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * abs(ev.pi)
+        if new.r is not None and (not prescribed_done or armijo):
+            return trial, new
         alpha *= 0.5
     raise ConvergenceError("line search found no step with det F > 0 that lowers the potential energy")
 

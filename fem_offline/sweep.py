@@ -58,12 +58,7 @@ def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats
         displacement=displacement,
         displacement_mm=case.displacement_mm,
         angle_deg=case.angle_deg,
-        newton_iterations=stats.iterations,
-        factorizations=stats.factorizations,
-        cg_iterations=stats.cg_iterations,
-        residual=stats.residual,
-        min_det_f=stats.min_det_f,
-        seconds=stats.seconds,
+        **stats.record(),
     )
 
 

@@ -68,7 +68,7 @@ def test_hard_corner_converges_without_inversion(corner_path, tiny_problem):
     """10 mm at beta = 10 deg: independent re-check of equilibrium and det F > 0 at every quadrature point."""
     d, u, stats = corner_path[-1]
     assert d == 10.0
-    r, min_j, _ = S._evaluate(tiny_problem, u.ravel(), want_tangent=False)
+    r, min_j = S._evaluate(tiny_problem, u.ravel())[:2]
     reactions = np.linalg.norm(np.delete(r, tiny_problem.free))
     assert np.linalg.norm(r[tiny_problem.free]) <= tiny_problem.scene.solver.rtol * reactions
     assert min_j > 0.3 and stats.min_det_f == pytest.approx(min_j)

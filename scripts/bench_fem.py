@@ -1,0 +1,104 @@
+"""Benchmark the offline FE on a scene: mesh size, assembly, linear and nonlinear solve times.
+
+    python scripts/bench_fem.py [--scene fem_offline/scenes/default.toml] [--steps 12] [--sweep runs/default]
+
+Prints medians measured in this run; with --sweep it also reads a finished sweep's manifest for
+the measured full-sweep time. Not a test: the numbers depend on the machine and its load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from statistics import median
+
+os.environ.setdefault("MKL_NUM_THREADS", "1")  # one core per path, as the sweep runs
+
+import numpy as np  # noqa: E402
+
+from fem_offline import elasticity as el  # noqa: E402
+from fem_offline import solve as S  # noqa: E402
+from fem_offline.io import mesh_for_scene  # noqa: E402
+from fem_offline.problem import build_problem  # noqa: E402
+from fem_offline.scene import load_scene  # noqa: E402
+
+
+def timed(fn, repeat=1):
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return median(times), out
+
+
+def skfem_assembly_seconds(problem) -> float:
+    """scikit-fem's own BilinearForm for the same operator, for comparison with the einsum kernel."""
+    from skfem import Basis, BilinearForm, ElementTetP2, ElementVector, asm
+    from skfem.helpers import ddot, div, sym_grad
+
+    from fem_offline.problem import lame
+
+    mesh = problem.mesh
+    mu, lam, _ = lame(problem.scene, mesh)
+    basis = Basis(mesh.skfem_mesh(), ElementVector(ElementTetP2()), intorder=2)
+
+    @BilinearForm
+    def linear_elasticity(u, v, w):
+        return w.lam * div(u) * div(v) + 2.0 * w.mu * ddot(sym_grad(u), sym_grad(v))
+
+    nq = basis.dx.shape[1]
+    t0 = time.perf_counter()
+    asm(linear_elasticity, basis, lam=np.repeat(lam[:, None], nq, 1), mu=np.repeat(mu[:, None], nq, 1))
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+    ap.add_argument("--steps", type=int, default=12, help="nonlinear load steps timed on the beta = 10 deg path")
+    ap.add_argument("--sweep", type=Path, help="a finished sweep folder to read the measured sweep time from")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+
+    scene = load_scene(args.scene)
+    t_mesh, mesh = timed(lambda: mesh_for_scene(scene))
+    t_prep, problem = timed(lambda: build_problem(scene, mesh))
+    n_cases = len(scene.sweep.angles_deg) * len(scene.sweep.displacements_mm)
+    print(f"scene {scene.name}: {len(mesh.tets)} tets, {len(mesh.nodes)} nodes, {3 * len(mesh.nodes)} DOFs "
+          f"({problem.free.size} free); gmsh {t_mesh:.1f} s, preparation {t_prep:.1f} s")
+
+    t_einsum, _ = timed(lambda: el.linear_stiffness(problem.G, problem.W, problem.mu, problem.lam), repeat=3)
+    print(f"element stiffness: einsum kernel {t_einsum:.2f} s, scikit-fem BilinearForm {skfem_assembly_seconds(problem):.2f} s")
+
+    lin = scene.model_copy(update={"effects": scene.effects.model_copy(update={"geometric_nonlinearity": False})})
+    lin_problem = build_problem(lin, mesh)
+    t_lin, modes = timed(lambda: S.linear_modes(lin_problem), repeat=3)
+    u0, ua, ub = modes
+    t_sup, _ = timed(lambda: [u0 + d * (np.cos(b) * ua + np.sin(b) * ub)
+                              for b in np.deg2rad(scene.sweep.angles_deg) for d in scene.sweep.displacements_mm])
+    print(f"linear: {t_lin:.2f} s per solve (factorise + 2 unit solves, median of 3); all {n_cases} cases by superposition "
+          f"{t_lin + t_sup:.2f} s")
+
+    steps = list(S.solve_path(problem, scene.sweep.displacements_mm[: args.steps], 10.0))
+    secs = [s.seconds for _, _, s in steps]
+    its = [s.iterations for _, _, s in steps]
+    per = median(secs)
+    print(f"nonlinear: median {per:.2f} s per snapshot (mean {np.mean(secs):.2f}), Newton iterations median {median(its)} "
+          f"(max {max(its)}), min det F {steps[-1][2].min_det_f:.3f} at {steps[-1][0]} mm, beta 10 deg, first {len(steps)} steps")
+    print(f"projected nonlinear sweep: {n_cases} x {np.mean(secs):.2f} s / {args.workers} workers = "
+          f"{n_cases * np.mean(secs) / args.workers / 60:.1f} min")
+    if args.sweep:
+        m = json.loads((args.sweep / "manifest.json").read_text())
+        rows = m["snapshots"]
+        print(f"measured sweep {args.sweep}: {m['n_done']}/{m['n_expected']} snapshots in {m['wall_seconds_this_run'] / 60:.1f} min "
+              f"wall; per snapshot median {median(r['seconds'] for r in rows):.2f} s, Newton iterations median "
+              f"{median(r['newton_iterations'] for r in rows)} max {max(r['newton_iterations'] for r in rows)}; "
+              f"min det F {min(r['min_det_f'] for r in rows):.3f}; failures {len(m['errors'])}")
+
+
+if __name__ == "__main__":
+    main()
