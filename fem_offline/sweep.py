@@ -113,12 +113,14 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     state, todo = _resume_state(out, path)
     if not todo:
         return {"written": 0}
-    written = 0
+    written, parent = 0, os.getppid()
     try:
         steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state)
         for case, (_, u, stats) in zip(todo, steps):
             write_snapshot(out, case, u, stats)
             written += 1
+            if os.getppid() != parent:  # the sweep was killed: stop after this (saved) snapshot
+                return {"written": written, "error": "sweep process ended"}
     except ConvergenceError as exc:
         failed = todo[written]
         return {"written": written, "error": f"angle {failed.angle_deg:g} deg, {failed.displacement_mm:g} mm: {exc}"}

@@ -24,10 +24,10 @@ from fem_offline.scene import load_scene  # noqa: E402
 from fem_offline.solve import solve_case  # noqa: E402
 
 
-def _solve(scene, mesh, nonlinear: bool, d: float, beta: float):
+def _solve(scene, mesh, nonlinear: bool, d: float, beta: float, step_mm: float):
     s = scene.model_copy(update={"effects": scene.effects.model_copy(update={"geometric_nonlinearity": nonlinear})})
     t0 = time.perf_counter()
-    u, _ = solve_case(build_problem(s, mesh), d, beta)
+    u, _ = solve_case(build_problem(s, mesh), d, beta, step_mm=step_mm)
     return u, time.perf_counter() - t0
 
 
@@ -36,6 +36,7 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
     ap.add_argument("--displacement-mm", type=float, default=10.0)
     ap.add_argument("--angle-deg", type=float, default=10.0)
+    ap.add_argument("--step-mm", type=float, default=0.5, help="load step (hyperelastic: the end state does not depend on it)")
     ap.add_argument("--linear-only", action="store_true")
     args = ap.parse_args()
     coarse_scene = load_scene(args.scene)
@@ -46,8 +47,9 @@ def main() -> None:
     print(f"coarse {len(coarse.tets)} tets, fine {len(fine.tets)} tets")
     probe = Basis(fine.skfem_mesh(), ElementTetP2()).probes(coarse.nodes[coarse.node_sets["prostate_surface"]].T)
     for nonlinear in ([False] if args.linear_only else [False, True]):
-        uc, tc = _solve(coarse_scene, coarse, nonlinear, args.displacement_mm, args.angle_deg)
-        uf, tf = _solve(fine_scene, fine, nonlinear, args.displacement_mm, args.angle_deg)
+        case = (nonlinear, args.displacement_mm, args.angle_deg, args.step_mm)
+        uc, tc = _solve(coarse_scene, coarse, *case)
+        uf, tf = _solve(fine_scene, fine, *case)
         at = np.stack([probe @ uf[:, i] for i in range(3)], axis=1)
         err = np.linalg.norm(uc[coarse.node_sets["prostate_surface"]] - at, axis=1)
         peak = np.linalg.norm(at, axis=1).max()
