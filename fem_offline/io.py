@@ -58,4 +58,8 @@ def load_or_build_mesh(scene: Scene, path: str | Path | None) -> meshmod.TetMesh
     path = Path(path)
     if not path.exists():
         raise ValueError(f"--mesh: no such file {path}")
-    return build_node_sets(meshmod.load(path), scene)
+    mesh = meshmod.load(path)
+    missing = sorted(set(mesh.tissue_names) - set(scene.tissues))
+    if missing:
+        raise ValueError(f"--mesh: {path} has tissues {missing} that the scene does not define")
+    return build_node_sets(mesh, scene)

@@ -1,6 +1,7 @@
 """Snapshot sweep over guide displacement x angle: resumable, atomic, on a process pool or Dask.
 
 Layout of the output folder:
+    scene.json                   the validated scene and its sha256 (a resumed sweep must match it)
     mesh.vtu, mesh.json          the P2 mesh with tissue tags and node sets (meshio)
     snapshots/a{i}_d{j}.npz      one case: displacement (n_nodes, 3) float64 mm + solver stats
     manifest.json                scene, scene hash, grid, counts and per-snapshot stats
@@ -10,6 +11,7 @@ interrupted resumes from its last written snapshot; finished snapshots are never
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import time
@@ -67,8 +69,6 @@ def prepare(scene: Scene, out: Path) -> meshmod.TetMesh:
     out.mkdir(parents=True, exist_ok=True)
     stamp = out / "scene.json"
     if stamp.exists():
-        import json
-
         old = json.loads(stamp.read_text())
         if old["scene_sha256"] != scene.sha256():
             raise SceneError(f"{out} holds a sweep of another scene (sha256 {old['scene_sha256'][:12]}); use a new --out")
@@ -85,7 +85,7 @@ def prepare(scene: Scene, out: Path) -> meshmod.TetMesh:
 @lru_cache(maxsize=2)
 def _problem(scene_json: str, mesh_path: str):
     """Per-process cache: workers build the problem once and reuse it for every path they get."""
-    scene = parse_scene(__import__("json").loads(scene_json))
+    scene = parse_scene(json.loads(scene_json))
     return build_problem(scene, meshmod.load(mesh_path))
 
 

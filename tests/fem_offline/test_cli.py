@@ -139,3 +139,17 @@ def test_dask_cluster_matches_local_pool(tmp_path):
         a = np.load(tmp_path / "local" / row["file"])["displacement"]
         b = np.load(tmp_path / "dask" / row["file"])["displacement"]
         np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_solve_reuses_a_saved_mesh_and_rejects_a_foreign_one(tmp_path, tiny_mesh):
+    from fem_offline.mesh import TetMesh, save
+
+    path = save(tiny_mesh, tmp_path / "mesh.vtu")
+    out = tmp_path / "case.npz"
+    run = _cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", path, "--displacement-mm", 0.5, "--angle-deg", 0, "--out", out)
+    assert run.returncode == 0, run.stderr
+    np.testing.assert_array_equal(np.load(out)["reference_positions"], tiny_mesh.nodes)
+    renamed = TetMesh(tiny_mesh.nodes, tiny_mesh.tets, tiny_mesh.tissue, ("liver",) + tiny_mesh.tissue_names[1:])
+    foreign = save(renamed, tmp_path / "foreign.vtu")
+    run = _cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", foreign, "--displacement-mm", 0.5, "--angle-deg", 0, "--out", out)
+    assert run.returncode == 2 and "liver" in run.stderr and "Traceback" not in run.stderr
