@@ -60,7 +60,7 @@ class PathState:
 
     u: np.ndarray
     d_mm: float = 0.0
-    history: list = field(default_factory=list)  # previous (d, u) for the secant predictor
+    history: list = field(default_factory=list)  # up to two earlier (d, u) for the path predictor
     factor: Factor | None = None
 
 
