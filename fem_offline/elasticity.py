@@ -55,10 +55,9 @@ def neo_hookean_stress(H, mu, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return P, Finv, J
 
 
-def neo_hookean_energy(H, W, mu, lam) -> float:
-    """Stored energy sum_q W(F) dx (kPa mm^3 = mJ); +inf if any J <= 0."""
+def neo_hookean_energy(H, J, W, mu, lam) -> float:
+    """Stored energy sum_q W(F) dx (kPa mm^3 = mJ), given J = det F from the stress pass; +inf if any J <= 0."""
     F = H + np.eye(3)
-    J = np.linalg.det(F)
     if not J.min() > 0:
         return np.inf
     lnJ = np.log(J)

@@ -84,7 +84,7 @@ def _evaluate(p: Problem, u: np.ndarray) -> Eval:
         min_j = float(J.min())
         if not min_j > 0:
             return Eval(None, min_j, np.inf)
-        pi = el.neo_hookean_energy(H, p.W, p.mu, p.lam) - work
+        pi = el.neo_hookean_energy(H, J, p.W, p.mu, p.lam) - work
     else:
         P, min_j, Finv, J = el.linear_stress(H, p.mu, p.lam), 1.0, None, None
         pi = el.linear_energy(H, p.W, p.mu, p.lam) - work
