@@ -1,0 +1,73 @@
+"""The ONNX graph against torch and a float64 numpy reference, the subset branch, the model folder."""
+
+import json
+import os
+import shutil
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from training.export import build_graph, folded_layers, reference_decode
+from training.network import train
+from training.pca import fit_pca
+
+
+@pytest.fixture(scope="module")
+def pieces():
+    rng = np.random.default_rng(0)
+    n_nodes = 500
+    x = np.stack([rng.uniform(0, 10, 120), rng.uniform(-10, 10, 120)], axis=1)
+    fields = 0.3 * rng.normal(size=(3, 3 * n_nodes))  # peak |u| about 10 mm, like the phantom
+    u = np.outer(x[:, 0], fields[0]) + np.outer(x[:, 0] * x[:, 1] / 10, fields[1]) + np.outer(x[:, 0] ** 2 / 10, fields[2])
+    pca = fit_pca(u, 6)
+    net, scaling, _ = train(x, pca.encode(u), width=20, max_iterations=100)
+    return net, scaling, pca
+
+
+def _session(model):
+    so = ort.SessionOptions()
+    so.log_severity_level = 3
+    return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
+
+
+def test_onnx_torch_numpy_parity(pieces):
+    """float32 onnxruntime, float32 torch and float64 numpy agree within 1e-4 mm at the envelope's corners."""
+    net, s, pca = pieces
+    guide = np.array([[0, -10], [10, -10], [0, 10], [10, 10], [5.3, 1.7]], dtype=np.float32)
+    layers = folded_layers(net, s)
+    reference = reference_decode(layers, pca, guide)
+    onnx_out = _session(build_graph(layers, pca)).run(None, {"guide": guide})[0]
+    with torch.no_grad():
+        net32 = net.float()
+        coef = net32(torch.from_numpy(((guide - s.input_center) / s.input_scale).astype(np.float32)))
+        coef = coef * torch.from_numpy(s.coef_scale.astype(np.float32)) + torch.from_numpy(s.coef_mean.astype(np.float32))
+        torch_out = (torch.from_numpy(pca.mean.astype(np.float32)) + coef @ torch.from_numpy(pca.basis.astype(np.float32)))
+        net.double()
+    torch_out = torch_out.numpy().reshape(len(guide), -1, 3)
+    scale = np.abs(reference).max()
+    assert np.abs(onnx_out - reference).max() < 1e-4 and np.abs(torch_out - reference).max() < 1e-4, scale
+    assert np.abs(onnx_out - torch_out).max() < 1e-4
+
+
+def test_subset_branch_decodes_exactly_the_requested_nodes(pieces):
+    net, s, pca = pieces
+    layers = folded_layers(net, s)
+    sess = _session(build_graph(layers, pca))
+    guide = np.array([[7.0, -3.0], [2.0, 4.0]], dtype=np.float32)
+    full = sess.run(None, {"guide": guide})[0]
+    ids = np.array([499, 0, 17, 17, 250])
+    sub = sess.run(None, {"guide": guide, "nodes": ids})[0]
+    assert sub.shape == (2, 5, 3)
+    np.testing.assert_allclose(sub, full[:, ids], atol=1e-6)
+
+
+def test_float16_basis_halves_the_basis_and_stays_close(pieces):
+    net, s, pca = pieces
+    layers = folded_layers(net, s)
+    m32, m16 = build_graph(layers, pca), build_graph(layers, pca, dtype=np.float16)
+    guide = np.array([[10.0, 10.0]], dtype=np.float32)
+    a, b = _session(m32).run(None, {"guide": guide})[0], _session(m16).run(None, {"guide": guide})[0]
+    assert m16.ByteSize() < 0.6 * m32.ByteSize()
+    assert np.abs(a - b).max() < 2e-3 * np.abs(a).max()

@@ -1,0 +1,133 @@
+"""`python -m training fit` end to end on a tiny sweep: the folder, its manifest, hashes and atomic writes."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from service.model import ModelError, Predictor, load_model_folder
+from training.snapshots import read_sweep
+
+
+def test_folder_holds_what_the_manifest_promises(tiny_model, tiny_sweep, tiny_test_cases):
+    m = json.loads((tiny_model / "manifest.json").read_text())
+    sweep = read_sweep(tiny_sweep)
+    assert m["mesh"]["n_nodes"] == len(sweep.mesh.nodes) and m["mesh"]["n_tets"] == len(sweep.mesh.tets)
+    assert m["pca"]["rank"] == 8 and 0.999 < m["pca"]["energy"] <= 1.0
+    assert m["scene"]["sha256"] == sweep.manifest["scene_sha256"]
+    assert m["envelope"] == {"displacement_mm": [0.0, 10.0], "angle_deg": [-10.0, 10.0]}
+    assert m["network"]["n_train"] == 110 - 2 and set(m["files"]) == {"model.onnx", "mesh.npz", "report.md"}
+    assert {"prostate", "prostate_surface", "markers", "guide_patch", "adipose"} <= set(m["regions"])
+    assert m["regions"]["markers"] == 8
+    rows = m["metrics"]["table3"]
+    assert [(r["displacement_mm"], r["angle_deg"]) for r in rows] == list(tiny_test_cases)
+    assert m["metrics"]["onnx_vs_float64_max_abs_mm"] < 1e-4
+
+
+def test_held_out_metrics_are_recomputed_from_the_shipped_model(tiny_model, tiny_sweep):
+    """The manifest's e_NN is what the exported ONNX model gives on the left-out snapshots."""
+    folder = load_model_folder(tiny_model)
+    predictor = Predictor(folder)
+    sweep = read_sweep(tiny_sweep).snapshots
+    for row in folder.manifest["metrics"]["table3"]:
+        i = np.flatnonzero((sweep.inputs[:, 0] == row["displacement_mm"]) & (sweep.inputs[:, 1] == row["angle_deg"]))[0]
+        err = np.linalg.norm(predictor.displacement(*sweep.inputs[i]) - sweep.displacement[i], axis=1).max()
+        assert err == pytest.approx(row["e_nn_mm"], rel=1e-3, abs=1e-7)
+        assert err < 0.01 * np.abs(sweep.displacement[i]).max()  # linear data: the fit is tight
+
+
+def test_zero_load_gives_near_zero_displacement(tiny_model):
+    predictor = Predictor(load_model_folder(tiny_model))
+    for angle in (-10.0, 0.0, 10.0):
+        assert np.abs(predictor.displacement(0.0, angle)).max() < 2e-3
+
+
+def test_mesh_surfaces_are_closed_and_outward(tiny_model):
+    """Each tissue's boundary triangles form a closed surface enclosing positive volume (divergence theorem)."""
+    folder = load_model_folder(tiny_model)
+    for name, tri in folder.surfaces.items():
+        p = folder.nodes[tri]
+        volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
+        edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        assert volume > 0, name
+        assert (counts % 2 == 0).all(), name  # every edge shared by an even number of triangles
+
+
+def test_corrupt_or_incomplete_folder_is_refused(tiny_model, tmp_path):
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(tiny_model, bad)
+    with open(bad / "model.onnx", "r+b") as f:
+        f.seek(100)
+        f.write(b"\x00\x01\x02")
+    with pytest.raises(ModelError, match="model.onnx does not match its sha256"):
+        load_model_folder(bad)
+    shutil.copy(tiny_model / "model.onnx", bad / "model.onnx")
+    load_model_folder(bad)
+    (bad / "mesh.npz").unlink()
+    with pytest.raises(ModelError, match="mesh.npz is listed in the manifest but missing"):
+        load_model_folder(bad)
+    with pytest.raises(ModelError, match="no manifest.json"):
+        load_model_folder(tmp_path)
+
+
+def test_failed_export_leaves_the_previous_model_intact(tiny_model, tiny_sweep, tiny_test_cases, tmp_path, monkeypatch):
+    import shutil
+
+    import training.folder as folder_mod
+    from training.fit import FitOptions, fit
+
+    out = tmp_path / "m"
+    shutil.copytree(tiny_model, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def crash(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(folder_mod, "write_mesh", crash)
+    with pytest.raises(OSError, match="disk full"):
+        fit(tiny_sweep, out, FitOptions(rank=4, max_iterations=20, test_cases=tiny_test_cases), progress=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m"]  # no temporary folder left behind
+    load_model_folder(out)
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "training", *map(str, args)], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--rank", "0"], "--rank must be at least 1"),
+        (["--rank", "500", "--test-case", "5/-2"], "--rank: must be between 1 and"),
+        (["--test-case", "7.75"], "--test-case: expected DISPLACEMENT_MM/ANGLE_DEG"),
+        (["--test-case", "7.7/-5"], "--test-case 7.7/-5.0: not a snapshot of this sweep"),
+    ],
+)
+def test_bad_arguments_get_one_clear_line(args, message, tiny_sweep, tmp_path):
+    run = _cli("fit", "--snapshots", tiny_sweep, "--out", tmp_path / "m", *args)
+    assert run.returncode == 2 and message in run.stderr and "Traceback" not in run.stderr
+    assert not (tmp_path / "m").exists()
+
+
+def test_unfinished_sweep_is_refused(tiny_sweep, tmp_path):
+    import shutil
+
+    partial = tmp_path / "partial"
+    shutil.copytree(tiny_sweep, partial)
+    next((partial / "snapshots").iterdir()).unlink()
+    run = _cli("fit", "--snapshots", partial, "--out", tmp_path / "m")
+    assert run.returncode == 2 and "holds 109 of 110 snapshots" in run.stderr
+
+
+def test_cli_writes_a_model_and_prints_its_metrics(tiny_sweep, tmp_path):
+    run = _cli("fit", "--snapshots", tiny_sweep, "--out", tmp_path / "m", "--rank", "4", "--iterations", "50",
+               "--test-case", "5/-2")
+    assert run.returncode == 0, run.stderr
+    assert "rank 4" in run.stdout and "e_NN" in run.stdout
+    load_model_folder(tmp_path / "m")

@@ -1,0 +1,70 @@
+"""Command line: `python -m training fit --snapshots DIR --out models/NAME`; bad input gets one line, exit code 2."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+
+def _case(text: str) -> tuple[float, float]:
+    try:
+        d, a = (float(v) for v in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--test-case: expected DISPLACEMENT_MM/ANGLE_DEG like 7.75/-5, got {text!r}") from None
+    return d, a
+
+
+def _positive(name: str):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"{name} must be at least 1, got {value}")
+        return value
+
+    return parse
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m training", description=__doc__)
+    ap.add_argument("-v", "--verbose", action="store_true")
+    sub = ap.add_subparsers(dest="command", required=True)
+    f = sub.add_parser("fit", help="PCA + MLP on a sweep, exported to a model folder")
+    f.add_argument("--snapshots", required=True, type=Path, help="a `fem_offline sweep` output folder")
+    f.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
+    f.add_argument("--offgrid", type=Path, help="folder of `fem_offline solve` cases to evaluate on")
+    f.add_argument("--rank", type=_positive("--rank"), default=16, help="PCA modes (default 16, the paper's)")
+    f.add_argument("--width", type=_positive("--width"), default=60, help="hidden units per layer (default 60)")
+    f.add_argument("--depth", type=_positive("--depth"), default=1, help="hidden layers (default 1)")
+    f.add_argument("--iterations", type=_positive("--iterations"), default=1000, help="L-BFGS iterations (default 1000)")
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--test-case", type=_case, action="append",
+                   help="held-out snapshot D/A (repeatable; default: the paper's five)")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    from .fit import PAPER_TEST_CASES, FitOptions, fit, summary_line
+
+    options = FitOptions(rank=args.rank, width=args.width, depth=args.depth, max_iterations=args.iterations,
+                         seed=args.seed, test_cases=tuple(args.test_case or PAPER_TEST_CASES))
+    try:
+        manifest = fit(args.snapshots, args.out, options, offgrid=args.offgrid)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"interrupted: {args.out} was left as it was", file=sys.stderr)
+        return 130
+    print(f"{args.out}: {summary_line(manifest)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
