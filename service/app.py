@@ -10,11 +10,11 @@ import numpy as np
 import orjson
 from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 
 from .model import ModelError, OutsideMesh, Predictor, load_model_folder
-from .schemas import PredictReply, predict_request_model
+from .schemas import MessageReply, PredictReply, ValidationReply, predict_request_model
 from .settings import Settings
 
 log = logging.getLogger(__name__)
@@ -65,13 +65,14 @@ class _TooLarge(Exception):
     pass
 
 
-def _allowed_values(manifest: dict, max_points: int) -> dict[str, str]:
+def _allowed_values(manifest: dict, max_points: int, bounds) -> dict[str, str]:
     (d_lo, d_hi), (a_lo, a_hi) = manifest["envelope"]["displacement_mm"], manifest["envelope"]["angle_deg"]
     return {
         "displacement_mm": f"a finite number from {d_lo} to {d_hi} mm, the model's training envelope",
         "angle_deg": f"a finite number from {a_lo} to {a_hi} degrees, the model's training envelope",
         "region": "one of " + ", ".join(sorted(manifest["regions"])),
-        "points": f"1 to {max_points} points, each [x, y, z] finite numbers in mm",
+        "points": f"1 to {max_points} points, each [x, y, z] in mm inside the mesh, within "
+                  f"{[round(v, 2) for v in bounds[0]]} to {[round(v, 2) for v in bounds[1]]}",
     }
 
 
@@ -87,7 +88,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()  # noqa: annotations below are evaluated: PredictRequest is built here
     folder = load_model_folder(settings.model)  # ModelError stops the start with a clear message
     manifest = folder.manifest
-    PredictRequest = predict_request_model(manifest, settings.max_points)
+    bounds = (folder.nodes.min(axis=0).tolist(), folder.nodes.max(axis=0).tolist())
+    PredictRequest = predict_request_model(manifest, settings.max_points, bounds)
     registry = CollectorRegistry()
     requests = Counter("predict_requests", "POST /predict requests", ["region", "format", "status"], registry=registry)
     latency = Histogram("predict_latency_seconds", "POST /predict handling time", ["region"],
@@ -109,7 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.predictor = None
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
-    allowed = _allowed_values(manifest, settings.max_points)
+    allowed = _allowed_values(manifest, settings.max_points, bounds)
 
     @app.exception_handler(RequestValidationError)
     async def invalid(request: Request, exc: RequestValidationError):
@@ -132,7 +134,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.post("/predict", response_model=PredictReply, responses={
         200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}},
               "description": "JSON, or with `Accept: application/octet-stream` raw little-endian float32 (count x 3)"},
-        413: {"description": "request body too large"}, 422: {"description": "a field is invalid or out of range"}})
+        400: {"model": MessageReply, "description": "the body is not UTF-8 text"},
+        413: {"model": MessageReply, "description": "request body too large"},
+        422: {"model": ValidationReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"}})
     async def predict(body: PredictRequest, request: Request, predictor: PredictorDep):  # type: ignore[valid-type]
         """Deformed positions for one guide displacement and angle.
 
@@ -211,7 +215,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             raise HTTPException(503, detail="model not loaded")
         return {"status": "ready", "model": manifest["name"]}
 
-    @app.get("/metrics")
+    @app.get("/metrics", response_class=PlainTextResponse)
     def metrics():
         """Prometheus text: request counts by region, format and status; latency histogram per region."""
         return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
