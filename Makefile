@@ -1,10 +1,15 @@
-# Two entry points a fresh machine needs: `make test` and (with the service issue) `make serve`.
+# Two entry points a fresh machine needs: `make serve` and `make test`.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-dev
+SERVE_STAMP := $(VENV)/.installed-service
+MODEL ?= models/default
+HOST ?= 127.0.0.1
+PORT ?= 8000
+IMAGE ?= deform-service
 
-.PHONY: install test bench clean system-deps
+.PHONY: install serve test bench bench-service container-test clean system-deps
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -25,11 +30,28 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# The service alone needs none of the offline or training stack (no torch, gmsh).
+$(SERVE_STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[service]'
+	touch $(SERVE_STAMP)
+
+serve: $(SERVE_STAMP)
+	$(PY) -m service --model $(MODEL) --host $(HOST) --port $(PORT)
+
 test: $(STAMP)
 	$(PY) -m pytest -q
 
 bench: $(STAMP)
 	$(PY) scripts/bench_fem.py
+
+bench-service: $(STAMP)
+	$(PY) scripts/bench_service.py --model $(MODEL)
+
+# Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
+container-test:
+	bash scripts/container_test.sh $(IMAGE)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,152 @@
+"""Load-test a running service on loopback: N clients for T seconds (or R requests), JSON or binary.
+
+    python scripts/loadtest.py --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
+    python scripts/loadtest.py --region markers --requests 2000
+
+Each client holds one keep-alive connection and sends random (displacement, angle) inside the
+model's envelope (read from GET /model). Prints p50/p95/p99/max latency, throughput and errors.
+Refuses non-loopback hosts; stops by itself (duration capped at 300 s, requests at 1e6).
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.client
+import ipaddress
+import json
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from urllib.parse import urlparse
+
+import numpy as np
+
+MAX_DURATION_S = 300.0
+MAX_REQUESTS = 1_000_000
+
+
+@dataclass
+class Result:
+    latencies_ms: np.ndarray
+    errors: int
+    wall_s: float
+
+    def summary(self) -> dict:
+        lat = self.latencies_ms if len(self.latencies_ms) else np.array([np.nan])
+        return {"requests": int(len(self.latencies_ms) + self.errors), "errors": self.errors,
+                "throughput_rps": len(self.latencies_ms) / self.wall_s if self.wall_s else 0.0,
+                "p50_ms": float(np.percentile(lat, 50)), "p95_ms": float(np.percentile(lat, 95)),
+                "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max())}
+
+
+def loopback(url: str) -> tuple[str, int]:
+    parsed = urlparse(url)
+    host, port = parsed.hostname or "", parsed.port or 80
+    try:
+        ok = all(ipaddress.ip_address(info[4][0]).is_loopback for info in socket.getaddrinfo(host, port))
+    except (socket.gaierror, ValueError):
+        ok = False
+    if parsed.scheme != "http" or not ok:
+        raise SystemExit(f"error: --url must be http:// on a loopback address (127.0.0.1, localhost, ::1), got {url!r}")
+    return host, port
+
+
+def _bodies(envelope: dict, region: str | None, n: int, seed: int) -> list[bytes]:
+    rng = np.random.default_rng(seed)
+    (d0, d1), (a0, a1) = envelope["displacement_mm"], envelope["angle_deg"]
+    out = []
+    for d, a in zip(rng.uniform(d0, d1, n), rng.uniform(a0, a1, n)):
+        body = {"displacement_mm": round(float(d), 4), "angle_deg": round(float(a), 4)}
+        if region:
+            body["region"] = region
+        out.append(json.dumps(body).encode())
+    return out
+
+
+def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requests: int | None = None,
+        fmt: str = "json", region: str | None = None, warmup: int = 20, seed: int = 0) -> Result:
+    """Drive the service; latency is from sending the request to having the whole reply body."""
+    host, port = loopback(url)
+    probe = http.client.HTTPConnection(host, port, timeout=10)
+    probe.request("GET", "/model")
+    envelope = json.loads(probe.getresponse().read())["envelope"]
+    probe.close()
+    headers = {"content-type": "application/json", "accept": "application/octet-stream" if fmt == "binary" else "application/json"}
+    deadline = time.perf_counter() + min(duration_s or MAX_DURATION_S, MAX_DURATION_S)
+    budget = [min(requests or MAX_REQUESTS, MAX_REQUESTS)]
+    lock = threading.Lock()
+    latencies: list[list[float]] = [[] for _ in range(concurrency)]
+    errors = [0] * concurrency
+
+    def client(i: int) -> None:
+        conn = http.client.HTTPConnection(host, port, timeout=30)
+        bodies = _bodies(envelope, region, 512, seed + i)
+        for k in range(warmup):
+            conn.request("POST", "/predict", body=bodies[k % 512], headers=headers)
+            conn.getresponse().read()
+        start.wait()
+        k = 0
+        while time.perf_counter() < deadline:
+            with lock:
+                if budget[0] <= 0:
+                    break
+                budget[0] -= 1
+            t0 = time.perf_counter()
+            try:
+                conn.request("POST", "/predict", body=bodies[k % 512], headers=headers)
+                reply = conn.getresponse()
+                reply.read()
+                ok = reply.status == 200
+            except (OSError, http.client.HTTPException):
+                ok = False
+                conn.close()
+                conn = http.client.HTTPConnection(host, port, timeout=30)
+            dt = (time.perf_counter() - t0) * 1e3
+            if ok:
+                latencies[i].append(dt)
+            else:
+                errors[i] += 1
+            k += 1
+        conn.close()
+
+    start = threading.Barrier(concurrency + 1)
+    threads = [threading.Thread(target=client, args=(i,), daemon=True) for i in range(concurrency)]
+    for t in threads:
+        t.start()
+    start.wait()
+    t0 = time.perf_counter()
+    for t in threads:
+        t.join()
+    return Result(np.concatenate([np.asarray(x) for x in latencies]), sum(errors), time.perf_counter() - t0)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--url", default="http://127.0.0.1:8000")
+    ap.add_argument("--concurrency", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=10.0, help=f"seconds (at most {MAX_DURATION_S:.0f})")
+    ap.add_argument("--requests", type=int, help="stop after this many requests")
+    ap.add_argument("--format", choices=("json", "binary"), default="json")
+    ap.add_argument("--region", help="decode one region (default: the full mesh)")
+    args = ap.parse_args()
+    if not 1 <= args.concurrency <= 256:
+        ap.error("--concurrency must be from 1 to 256")
+    if args.duration <= 0 or (args.requests is not None and args.requests < 1):
+        ap.error("--duration and --requests must be positive")
+    try:
+        result = run(args.url, concurrency=args.concurrency, duration_s=args.duration, requests=args.requests,
+                     fmt=args.format, region=args.region)
+    except ConnectionRefusedError:
+        print(f"error: nothing listens on {args.url}; start it with `make serve`", file=sys.stderr)
+        return 2
+    s = result.summary()
+    print(f"{args.region or 'full mesh'} {args.format} c={args.concurrency}: {s['requests']} requests, "
+          f"{s['errors']} errors, {s['throughput_rps']:.0f} req/s; latency ms p50 {s['p50_ms']:.2f} "
+          f"p95 {s['p95_ms']:.2f} p99 {s['p99_ms']:.2f} max {s['max_ms']:.2f}")
+    return 1 if s["errors"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
