@@ -74,7 +74,7 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
     envelope = json.loads(probe.getresponse().read())["envelope"]
     probe.close()
     headers = {"content-type": "application/json", "accept": "application/octet-stream" if fmt == "binary" else "application/json"}
-    deadline = time.perf_counter() + min(duration_s or MAX_DURATION_S, MAX_DURATION_S)
+    span = min(duration_s or MAX_DURATION_S, MAX_DURATION_S)
     budget = [min(requests or MAX_REQUESTS, MAX_REQUESTS)]
     lock = threading.Lock()
     latencies: list[list[float]] = [[] for _ in range(concurrency)]
@@ -88,7 +88,7 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
             conn.getresponse().read()
         start.wait()
         k = 0
-        while time.perf_counter() < deadline:
+        while time.perf_counter() < deadline_at[0]:
             with lock:
                 if budget[0] <= 0:
                     break
@@ -111,12 +111,14 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
             k += 1
         conn.close()
 
+    deadline_at = [time.perf_counter() + 2 * MAX_DURATION_S]  # set for real once every client has warmed up
     start = threading.Barrier(concurrency + 1)
     threads = [threading.Thread(target=client, args=(i,), daemon=True) for i in range(concurrency)]
     for t in threads:
         t.start()
-    start.wait()
+    start.wait()  # every client has warmed up
     t0 = time.perf_counter()
+    deadline_at[0] = t0 + span
     for t in threads:
         t.join()
     return Result(np.concatenate([np.asarray(x) for x in latencies]), sum(errors), time.perf_counter() - t0)

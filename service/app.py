@@ -167,15 +167,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         else:
             u = predictor.displacement(d, a)
             reference = predictor.nodes32
-        positions = reference + u
+        positions = np.add(u, reference, out=u) if u.dtype == np.float32 else reference + u  # in place: no copy
         if fmt == "binary":
-            reply = Response(np.ascontiguousarray(positions, dtype="<f4").tobytes(), media_type=BINARY, headers={
+            # float32 arrays are little-endian on every platform onnxruntime ships for; no copy to bytes
+            reply = Response(memoryview(np.ascontiguousarray(positions, dtype="<f4")), media_type=BINARY, headers={
                 "X-Count": str(len(positions)), "X-Layout": "float32 little-endian, count x 3 (x, y, z) mm, deformed positions"})
         else:
             content = {"model": manifest["name"], "displacement_mm": d, "angle_deg": a, "region": region,
                        "count": len(positions), "positions": positions}
             if region == "markers" or body.points is not None:
-                content["displacements"] = u
+                content["displacements"] = positions - reference
             if node_ids is not None:
                 content["node_ids"] = node_ids
             reply = OrjsonResponse(content)
