@@ -37,6 +37,7 @@ class Problem:
     guide_dofs: np.ndarray  # (n_patch, 3)
     guide_weight: np.ndarray  # (n_patch,)
     body_force: np.ndarray | None  # (n_dofs,) or None when gravity is off
+    active: np.ndarray | None = None  # (n_tets,) bool: the tets assembled (not all-constrained)
 
     @property
     def n_dofs(self) -> int:
@@ -111,4 +112,4 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
         fe = np.zeros((active.sum(), 10, 3))
         fe[:, :, 2] = np.einsum("aeq,eq->ea", N, W) * fz[:, None]
         body = assemble_vector(pattern, fe)
-    return Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide, weight, body)
+    return Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide, weight, body, active)

@@ -218,7 +218,14 @@ def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: Path
         stats, t0 = Stats(), time.perf_counter()
         n_sub = max(1, int(np.ceil(abs(d - state.d_mm) / max_step - 1e-9)))
         for target in np.linspace(state.d_mm, d, n_sub + 1)[1:]:
-            advance(problem, state, float(target), angle_deg, stats)
+            last = state.d_mm
+            try:
+                advance(problem, state, float(target), angle_deg, stats)
+            except ConvergenceError as exc:
+                raise ConvergenceError(
+                    f"no equilibrium found for guide displacement {target:.4g} mm at beta {angle_deg:g} deg "
+                    f"(last converged: {last:.4g} mm; load step halved {problem.scene.solver.max_halvings} times): {exc}"
+                ) from None
         stats.seconds = time.perf_counter() - t0
         yield float(d), state.u.reshape(-1, 3).copy(), stats
 

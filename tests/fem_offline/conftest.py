@@ -25,6 +25,14 @@ def tiny_problem(tiny_scene, tiny_mesh):
 
 
 @pytest.fixture(scope="session")
+def corner_path(tiny_problem):
+    """beta = +10 deg, 2.5 ... 10 mm: the hard corner of the sweep."""
+    from fem_offline import solve as S
+
+    return list(S.solve_path(tiny_problem, [2.5, 5.0, 7.5, 10.0], 10.0))
+
+
+@pytest.fixture(scope="session")
 def tiny_linear_problem(tiny_scene, tiny_mesh):
     scene = tiny_scene.model_copy(update={"effects": tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})})
     return build_problem(scene, tiny_mesh)

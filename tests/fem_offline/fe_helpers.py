@@ -36,3 +36,51 @@ def internal_force_nh(pattern, G, W, mu, lam, u):
     H = el.displacement_gradient(G, u[pattern.edofs].reshape(-1, 10, 3))
     P, _, _ = el.neo_hookean_stress(H, mu, lam)
     return assemble_vector(pattern, el.internal_force(G, W, P))
+
+
+def _octant_shell(a, b, size):
+    """One octant of the thick sphere a < r < b, graded: the faceted inner sphere is the dominant error."""
+    import gmsh
+    from skfem import MeshTet
+
+    gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        occ = gmsh.model.occ
+        shell, _ = occ.cut([(3, occ.addSphere(0, 0, 0, b))], [(3, occ.addSphere(0, 0, 0, a))])
+        occ.intersect(shell, [(3, occ.addBox(0, 0, 0, 2 * b, 2 * b, 2 * b))])
+        occ.synchronize()
+        gmsh.model.mesh.setSizeCallback(lambda dim, tag, x, y, z, lc: size * (0.25 + 0.75 * (np.sqrt(x * x + y * y + z * z) - a) / (b - a)))
+        gmsh.model.mesh.generate(3)
+        _, coords, _ = gmsh.model.mesh.getNodes()
+        _, _, enodes = gmsh.model.mesh.getElements(3)
+    finally:
+        gmsh.finalize()
+    p = coords.reshape(-1, 3)
+    t = enodes[0].astype(np.int64).reshape(-1, 4) - 1
+    return MeshTet(p.T.copy(), t.T.copy())
+
+
+def lame_sphere_error(nu, size=0.4):
+    """Max relative radial-displacement error of the thick sphere a=1, b=2 under internal pressure p:
+    u(r) = p a^3 / (E (b^3 - a^3)) [(1 - 2 nu) r + (1 + nu) b^3 / (2 r^2)].
+    Symmetry planes of the octant: u_n = 0. Checked at vertices, which lie on the true spheres."""
+    from skfem import FacetBasis, LinearForm
+
+    a, b, E, p = 1.0, 2.0, 1.0, 1.0
+    mesh = _octant_shell(a, b, size)
+    nodes, tets, G, W, _ = p2_data(mesh)
+    mu, lam = lame_params(E, nu, len(tets))
+    inner = mesh.facets_satisfying(lambda x: np.linalg.norm(x, axis=0) < a + 1e-6, boundaries_only=True)
+    fb = FacetBasis(mesh, ElementTetP2(), facets=inner, intorder=4)
+    f = np.zeros(3 * len(nodes))
+    for i in range(3):
+        form = LinearForm(lambda v, w, i=i: p * w.x[i] / np.linalg.norm(w.x, axis=0) * v)
+        f[i::3] = form.assemble(fb)
+    fixed = np.concatenate([3 * np.flatnonzero(np.abs(nodes[:, i]) < 1e-9) + i for i in range(3)])
+    u, _ = solve_linear(tets, len(nodes), G, W, mu, lam, fixed, np.zeros_like(f), f)
+    r = np.linalg.norm(nodes, axis=1)
+    ur = np.einsum("ij,ij->i", u.reshape(-1, 3), nodes / r[:, None])
+    exact = p * a**3 / (E * (b**3 - a**3)) * ((1 - 2 * nu) * r + (1 + nu) * b**3 / (2 * r**2))
+    vertices = np.arange(mesh.nvertices)  # on the true spheres; edge nodes sit on chords
+    return float(np.abs(ur - exact)[vertices].max() / exact.max())

@@ -15,12 +15,6 @@ def _mirror_map(nodes):
     return idx
 
 
-@pytest.fixture(scope="module")
-def corner_path(tiny_problem):
-    """beta = +10 deg, 2.5 ... 10 mm: the hard corner of the sweep."""
-    return list(S.solve_path(tiny_problem, [2.5, 5.0, 7.5, 10.0], 10.0))
-
-
 @pytest.mark.parametrize("problem", ["tiny_problem", "tiny_linear_problem"])
 def test_zero_guide_displacement_gives_exactly_zero(problem, request):
     u, stats = S.solve_case(request.getfixturevalue(problem), 0.0, 7.0)

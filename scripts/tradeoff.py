@@ -1,0 +1,280 @@
+"""What accuracy costs in time: every row measured on this machine in one run -> docs/tradeoff.md + .png.
+
+    python scripts/tradeoff.py --sweep runs/default --offgrid runs/default/offgrid [--out docs]
+
+Rows (errors are max and p99 nodal errors in mm; times are medians of repeated runs):
+  FE mesh fidelity  linear solve per snapshot vs error against the finest mesh, at probe points
+                    inside the prostate, for beta = -10, 0, 10 deg at 10 mm
+  FE physics        linear vs geometrically nonlinear: whole-sweep time vs their difference
+  PCA rank          reconstruction and held-out error, full-mesh decode latency
+  network           width/depth: held-out error, training time, decode latency
+  precision/region  float32 vs float16 basis; full mesh vs a region
+  FE vs surrogate   one query: FE solve vs decode (the paper: 11.1 min vs 0.04 s)
+Held-out error = worst over the paper's five samples and the off-grid cases, float32 ONNX model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MKL_NUM_THREADS", "2")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from fem_offline.io import mesh_for_scene  # noqa: E402
+from fem_offline.problem import build_problem  # noqa: E402
+from fem_offline.scene import load_scene  # noqa: E402
+from fem_offline.solve import linear_modes  # noqa: E402
+from service.model import PointLocator, p2_weights  # noqa: E402
+from training.export import build_graph, folded_layers  # noqa: E402
+from training.fit import PAPER_TEST_CASES, _held_out_mask  # noqa: E402
+from training.network import train  # noqa: E402
+from training.pca import fit_pca  # noqa: E402
+from training.snapshots import read_cases, read_sweep  # noqa: E402
+
+MESH_SIZES = [(16.0, 6.0, 2.5), (12.0, 4.0, 2.0), (8.0, 2.7, 1.35), (6.0, 2.0, 1.0), (4.8, 1.6, 0.8)]
+
+
+def median_time(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def nodal(pred: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    e = np.linalg.norm(pred - ref, axis=-1).ravel()
+    return float(e.max()), float(np.percentile(e, 99))
+
+
+def row(group, setting, err, seconds, note="", **extra):
+    return {"group": group, "setting": setting, "max_mm": err[0], "p99_mm": err[1], "seconds": seconds, "note": note, **extra}
+
+
+def fe_mesh_rows(scene_path: Path) -> list[dict]:
+    base = load_scene(scene_path)
+    base = base.model_copy(update={"effects": base.effects.model_copy(update={"geometric_nonlinearity": False})})
+    fields, meshes, times = [], [], []
+    for mx, pr, gd in MESH_SIZES:
+        scene = base.model_copy(update={"mesh": base.mesh.model_copy(update={"max_mm": mx, "prostate_mm": pr, "guide_mm": gd})})
+        mesh = mesh_for_scene(scene)
+        problem = build_problem(scene, mesh)
+        t = median_time(lambda: linear_modes(problem), 3 if len(mesh.tets) < 30000 else 1)
+        _, ua, ub = linear_modes(problem)
+        fields.append((ua.reshape(-1, 3), ub.reshape(-1, 3)))
+        meshes.append(mesh)
+        times.append(t)
+        print(f"  mesh {mx}/{pr}/{gd} mm: {len(mesh.tets)} tets, linear solve {t:.2f} s", flush=True)
+    # probes: the coarsest mesh's prostate nodes, which lie inside every finer mesh
+    coarse = meshes[0]
+    probes = coarse.nodes[np.unique(coarse.tets[coarse.tissue == coarse.tissue_names.index("prostate")])]
+
+    def at_probes(mesh, field):
+        tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes, tol=1e-6)
+        assert (tet >= 0).all()
+        return np.einsum("kn,knd->kd", p2_weights(bary), field[mesh.tets[tet]])
+
+    rows = []
+    for beta in (-10.0, 0.0, 10.0):
+        b = np.radians(beta)
+        ref = None
+        vals = []
+        for mesh, (ua, ub) in zip(meshes, fields):
+            vals.append(at_probes(mesh, 10.0 * (np.cos(b) * ua + np.sin(b) * ub)))
+        ref = vals[-1]
+        for i, v in enumerate(vals[:-1]):
+            rows.append((i, nodal(v, ref)))
+    out = []
+    for i, (mesh, t) in enumerate(zip(meshes[:-1], times[:-1])):
+        errs = [e for j, e in rows if j == i]
+        out.append(row("FE mesh (linear)", f"{len(mesh.tets)} tets", (max(e[0] for e in errs), max(e[1] for e in errs)), t,
+                       f"sizes {MESH_SIZES[i]} mm; vs {len(meshes[-1].tets)} tets", kind="query"))
+    out.append(row("FE mesh (linear)", f"{len(meshes[-1].tets)} tets (reference)", (0.0, 0.0), times[-1], "the reference", kind="reference"))
+    return out
+
+
+def physics_rows(sweep, scene_path: Path) -> list[dict]:
+    scene = load_scene(scene_path)
+    lin_scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"geometric_nonlinearity": False})})
+    problem = build_problem(lin_scene, sweep.mesh)
+    t_lin = median_time(lambda: linear_modes(problem), 3)
+    u0, ua, ub = linear_modes(problem)
+    d, a = sweep.snapshots.inputs[:, 0], np.radians(sweep.snapshots.inputs[:, 1])
+    lin = d[:, None, None] * (np.cos(a)[:, None, None] * ua.reshape(1, -1, 3) + np.sin(a)[:, None, None] * ub.reshape(1, -1, 3))
+    err = nodal(lin, sweep.snapshots.displacement)
+    nl_minutes = sweep.manifest.get("wall_seconds_total", sweep.manifest.get("wall_seconds_this_run", float("nan"))) / 60
+    return [row("FE physics", "linear, whole 840 sweep", err, t_lin, "vs the nonlinear snapshots", kind="sweep"),
+            row("FE physics", "nonlinear, whole 840 sweep", (0.0, 0.0), nl_minutes * 60, "sweep wall time from its manifest", kind="sweep")]
+
+
+def decode_latency(model_bytes: bytes, nodes=None, repeat: int = 300):
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 1
+    so.log_severity_level = 3
+    sess = ort.InferenceSession(model_bytes, so, providers=["CPUExecutionProvider"])
+    feed = {"guide": np.array([[5.0, 2.0]], dtype=np.float32)}
+    if nodes is not None:
+        feed["nodes"] = np.asarray(nodes, dtype=np.int64)
+    for _ in range(20):
+        sess.run(None, feed)
+    return median_time(lambda: sess.run(None, feed), repeat), sess
+
+
+def held_out(sess, inputs, reference) -> tuple[float, float]:
+    pred = np.concatenate([sess.run(None, {"guide": x[None].astype(np.float32)})[0] for x in inputs])
+    return nodal(pred.astype(np.float64), reference)
+
+
+def surrogate_rows(sweep, offgrid_inputs, offgrid_disp) -> list[dict]:
+    s = sweep.snapshots
+    test = _held_out_mask(s.inputs, PAPER_TEST_CASES)
+    tr = s.select(~test)
+    angles = np.unique(s.inputs[:, 1])
+    inputs = np.concatenate([tr.inputs, np.stack([np.zeros_like(angles), angles], axis=1)])
+    x = np.concatenate([tr.displacement.reshape(len(tr), -1), np.zeros((len(angles), tr.displacement[0].size))])
+    ho_inputs = np.concatenate([s.inputs[test], offgrid_inputs])
+    ho_ref = np.concatenate([s.displacement[test], offgrid_disp])
+    rows, pcas = [], {}
+    for rank in (1, 2, 4, 8, 16, 24, 32, 48, 64):
+        pca = fit_pca(x, rank)
+        pcas[rank] = pca
+        recon = pca.decode(pca.encode(ho_ref.reshape(len(ho_ref), -1))).reshape(ho_ref.shape)
+        t0 = time.perf_counter()
+        net, scaling, info = train(inputs, pca.encode(x), width=60, depth=1)
+        t_train = time.perf_counter() - t0
+        model = build_graph(folded_layers(net, scaling), pca).SerializeToString()
+        lat, sess = decode_latency(model)
+        rows.append(row("PCA rank", f"rank {rank}", held_out(sess, ho_inputs, ho_ref), lat,
+                        f"PCA alone {nodal(recon, ho_ref)[0]:.4f} mm; train {t_train:.1f} s", kind="query",
+                        reconstruction_max_mm=nodal(recon, ho_ref)[0], train_seconds=t_train))
+        print(f"  rank {rank}: held-out {rows[-1]['max_mm']:.4f} mm, decode {lat * 1e3:.3f} ms", flush=True)
+    pca = pcas[32]
+    coef = pca.encode(x)
+    for width, depth in ((15, 1), (30, 1), (60, 1), (120, 1), (30, 2), (60, 2)):
+        t0 = time.perf_counter()
+        net, scaling, info = train(inputs, coef, width=width, depth=depth)
+        t_train = time.perf_counter() - t0
+        layers = folded_layers(net, scaling)
+        lat, sess = decode_latency(build_graph(layers, pca).SerializeToString())
+        rows.append(row("network (rank 32)", f"{depth}x{width} tanh", held_out(sess, ho_inputs, ho_ref), lat,
+                        f"train {t_train:.1f} s, {info['iterations']} L-BFGS iterations", kind="query", train_seconds=t_train))
+        print(f"  {depth}x{width}: held-out {rows[-1]['max_mm']:.4f} mm, train {t_train:.1f} s", flush=True)
+        if (width, depth) == (60, 1):
+            default_layers = layers
+    for dtype, name in ((np.float32, "float32"), (np.float16, "float16")):
+        model = build_graph(default_layers, pca, dtype=dtype).SerializeToString()
+        lat, sess = decode_latency(model)
+        rows.append(row("basis precision", f"{name} basis, full mesh", held_out(sess, ho_inputs, ho_ref), lat,
+                        f"model.onnx {len(model) / 1e6:.1f} MB", kind="query"))
+    model = build_graph(default_layers, pca).SerializeToString()
+    full = held_out(decode_latency(model)[1], ho_inputs, ho_ref)
+    for region in ("prostate_surface", "markers"):
+        ids = sweep.mesh.node_sets[region]
+        lat, sess = decode_latency(model, ids)
+        pred = np.concatenate([sess.run(None, {"guide": xx[None].astype(np.float32), "nodes": ids})[0] for xx in ho_inputs])
+        rows.append(row("region", f"{region} ({len(ids)} nodes)", nodal(pred.astype(np.float64), ho_ref[:, ids]), lat,
+                        f"full mesh: {full[0]:.4f} mm", kind="query"))
+    return rows
+
+
+def fe_vs_surrogate(offgrid_files, default_latency: float) -> dict:
+    seconds = []
+    for f in offgrid_files:
+        with np.load(f) as z:
+            seconds.append(float(z["seconds"]))
+    fe = float(np.median(seconds))
+    return {"fe_seconds_median": fe, "fe_seconds_max": max(seconds), "surrogate_seconds": default_latency,
+            "speedup": fe / default_latency, "paper_speedup": 11.1 * 60 / 0.04}
+
+
+def pareto(points: list[tuple[float, float]]) -> list[int]:
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], np.inf
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def write_outputs(rows, versus, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    query = [r for r in rows if r["kind"] == "query" and r["max_mm"] > 0]
+    pts = [(r["seconds"], r["max_mm"]) for r in query]
+    front = set(pareto(pts))
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    groups = sorted({r["group"] for r in query})
+    for g, marker in zip(groups, "osD^vP*X"):
+        idx = [i for i, r in enumerate(query) if r["group"] == g]
+        ax.scatter([pts[i][0] for i in idx], [pts[i][1] for i in idx], marker=marker, label=g, s=40)
+    fr = sorted(front, key=lambda i: pts[i][0])
+    ax.plot([pts[i][0] for i in fr], [pts[i][1] for i in fr], "k--", lw=1, label="Pareto front")
+    for i in fr:
+        ax.annotate(query[i]["setting"], pts[i], fontsize=7, xytext=(4, 4), textcoords="offset points")
+    ax.set(xscale="log", yscale="log", xlabel="time per query (s): FE solve or onnxruntime decode, median",
+           ylabel="max nodal error (mm)", title="What accuracy costs in time (2 cores)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "tradeoff.png", dpi=120)
+    lines = ["# Accuracy vs time", "", "Written by `python scripts/tradeoff.py --sweep runs/default --offgrid runs/default/offgrid`;",
+             "every row was measured in the same run on the same machine (2 cores).", "",
+             "| group | setting | max error (mm) | p99 error (mm) | time | note |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        t = f"{r['seconds'] * 1e3:.3f} ms" if r["seconds"] < 1 else f"{r['seconds']:.2f} s"
+        pf = " **(Pareto)**" if r in [query[i] for i in front] else ""
+        lines.append(f"| {r['group']} | {r['setting']}{pf} | {r['max_mm']:.4f} | {r['p99_mm']:.5f} | {t} | {r['note']} |")
+    lines += ["", f"**FE vs surrogate, one query**: FE nonlinear solve from rest (off-grid cases) median "
+              f"{versus['fe_seconds_median']:.1f} s (max {versus['fe_seconds_max']:.1f} s); decode "
+              f"{versus['surrogate_seconds'] * 1e3:.3f} ms: **{versus['speedup']:,.0f}x** faster. "
+              f"The paper: 11.1 min vs 0.04 s = {versus['paper_speedup']:,.0f}x.", "",
+              "Errors: FE mesh rows against the finest mesh at the prostate's probe points (linear, 10 mm, "
+              "beta = -10/0/10 deg); surrogate rows against the default mesh's FE snapshots (the paper's five "
+              "held-out samples + the off-grid cases), all nodes, float32 ONNX model. Times: FE rows are one "
+              "factorisation + solve (a linear snapshot), physics rows a whole sweep, surrogate rows one "
+              "onnxruntime call (1 thread).", "", "![tradeoff](tradeoff.png)", ""]
+    (out / "tradeoff.md").write_text("\n".join(lines))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sweep", type=Path, default=Path("runs/default"))
+    ap.add_argument("--offgrid", type=Path, default=Path("runs/default/offgrid"))
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+    ap.add_argument("--out", type=Path, default=Path("docs"))
+    ap.add_argument("--skip-fe-meshes", action="store_true", help="leave out the mesh-fidelity rows (the slowest part)")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    sweep = read_sweep(args.sweep)
+    files = sorted(args.offgrid.glob("*.npz"))
+    og_inputs, og_disp = read_cases(files)
+    print("surrogate rows ...", flush=True)
+    rows = surrogate_rows(sweep, og_inputs, og_disp)
+    print("physics rows ...", flush=True)
+    rows = physics_rows(sweep, args.scene) + rows
+    if not args.skip_fe_meshes:
+        print("FE mesh rows ...", flush=True)
+        rows = fe_mesh_rows(args.scene) + rows
+    default = next(r for r in rows if r["setting"] == "1x60 tanh")
+    versus = fe_vs_surrogate(files, default["seconds"])
+    write_outputs(rows, versus, args.out)
+    print(f"wrote {args.out / 'tradeoff.md'} and {args.out / 'tradeoff.png'} in {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
