@@ -69,3 +69,61 @@ class Factor:
         # pypardiso keeps MKL's factors until told; release them with the last reference.
         if PyPardisoSolver is not None and hasattr(self, "_ps"):
             self._ps.free_memory(everything=True)
+
+
+# Above this many unknowns PARDISO's factors outgrow 24 GB: at 910,980 (the paper-scale phantom,
+# 225,938 P2 tets) the in-core factorisation was killed at 17.5 GB resident, single-precision
+# factors hit a zero pivot (nu = 0.495) and out-of-core mode could not open its files.
+AMG_MIN_DOFS = 400_000
+
+
+def rigid_body_modes(nodes: np.ndarray) -> np.ndarray:
+    """The 6 rigid-body displacement fields (3 n_nodes, 6): elasticity's near-nullspace for AMG."""
+    x, y, z = nodes.T
+    B = np.zeros((3 * len(nodes), 6))
+    B[0::3, 0] = B[1::3, 1] = B[2::3, 2] = 1.0
+    B[0::3, 3], B[1::3, 3] = -y, x  # rotation about z
+    B[1::3, 4], B[2::3, 4] = -z, y  # about x
+    B[0::3, 5], B[2::3, 5] = z, -x  # about y
+    return B
+
+
+class AmgSolve:
+    """K^-1 b by conjugate gradients preconditioned with smoothed-aggregation AMG (pyamg).
+
+    For SPD systems too large to factorise here. The aggregates carry the rigid-body modes, the
+    smoother is symmetric Gauss-Seidel (a free set that splits nodes rules out 3x3 blocks).
+    Measured on the paper-scale linear problem (910,980 unknowns, nu = 0.495): setup 29 s,
+    151 CG iterations to 1e-8 in 145 s, 14 GB resident; on the default mesh it matches PARDISO
+    to 4e-6 mm.
+    """
+
+    def __init__(self, K: sp.csr_matrix, near_nullspace: np.ndarray, rtol: float = 1e-9):
+        import pyamg
+
+        self.shape, self.rtol, self.iterations = K.shape, rtol, []
+        self._K = K.tocsr()
+        smoother = ("gauss_seidel", {"sweep": "symmetric"})
+        self._ml = pyamg.smoothed_aggregation_solver(
+            self._K, B=near_nullspace, symmetry="hermitian", strength=("symmetric", {"theta": 0.0}),
+            smooth=("jacobi", {"omega": 4.0 / 3.0, "degree": 1}), presmoother=smoother, postsmoother=smoother,
+            max_coarse=2000)
+        self._M = self._ml.aspreconditioner(cycle="V")
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        from scipy.sparse.linalg import cg
+
+        count = [0]
+        x, info = cg(self._K, b, rtol=self.rtol, maxiter=5000, M=self._M, callback=lambda _: count.__setitem__(0, count[0] + 1))
+        self.iterations.append(count[0])
+        if info != 0:
+            raise np.linalg.LinAlgError(f"AMG-preconditioned CG did not reach rtol {self.rtol} in {count[0]} iterations")
+        log.info("AMG-CG: %d iterations", count[0])
+        return x
+
+
+def factorise(K: sp.csr_matrix, near_nullspace: np.ndarray | None = None, amg_min_dofs: int = AMG_MIN_DOFS):
+    """A solver for K: PARDISO's factors, or AMG-CG when K is too large to factorise (and B is given)."""
+    if near_nullspace is not None and K.shape[0] >= amg_min_dofs:
+        return AmgSolve(K, near_nullspace)
+    return Factor(K)

@@ -19,7 +19,7 @@ from scipy.sparse.linalg import LinearOperator, cg
 
 from . import elasticity as el
 from .assembly import apply_matrix, assemble_matrix, assemble_vector
-from .linsolve import Factor
+from .linsolve import Factor, factorise, rigid_body_modes
 from .problem import Problem
 
 log = logging.getLogger(__name__)
@@ -237,7 +237,7 @@ def linear_modes(problem: Problem):
     """
     p = problem
     Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
-    factor = Factor(assemble_matrix(p.pattern, Ke))
+    factor = factorise(assemble_matrix(p.pattern, Ke), near_nullspace=rigid_body_modes(p.mesh.nodes)[p.free])
     fields = []
     for beta in (0.0, 90.0):
         g = p.dirichlet(1.0, beta)
