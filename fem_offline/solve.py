@@ -109,7 +109,7 @@ def _solve_linearised(state: PathState, K, rhs, stats: Stats) -> np.ndarray:
         stats.cg_iterations += count[0]
         if info == 0:
             return du
-    state.factor = Factor(K)
+    state.factor = state.factor.refactor(K) if state.factor is not None else Factor(K)
     stats.factorizations += 1
     return state.factor.solve(rhs)
 
