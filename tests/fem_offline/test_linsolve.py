@@ -1,4 +1,4 @@
-"""AMG-CG (used where PARDISO's factors do not fit) gives the direct solver's answer."""
+"""Linear solvers: AMG-CG (where PARDISO's factors do not fit) and PARDISO refactorisation."""
 
 import numpy as np
 
@@ -34,3 +34,16 @@ def test_small_systems_stay_direct(tiny_linear_problem):
     p = tiny_linear_problem
     K = assemble_matrix(p.pattern, el.linear_stiffness(p.G, p.W, p.mu, p.lam))
     assert isinstance(factorise(K, near_nullspace=rigid_body_modes(p.mesh.nodes)[p.free]), Factor)
+
+
+def test_refactor_reuses_the_analysis_and_gives_a_fresh_factors_answer(tiny_linear_problem):
+    p = tiny_linear_problem
+    Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+    K = assemble_matrix(p.pattern, Ke)
+    rhs = -apply_matrix(p.pattern, Ke, p.dirichlet(5.0, -3.0))[p.free]
+    first = Factor(K)
+    again = first.refactor(2.5 * K)  # same pattern, new values: phase 22 on the same solver
+    assert again is first
+    np.testing.assert_allclose(again.solve(rhs), Factor(2.5 * K).solve(rhs), rtol=1e-10, atol=1e-12)
+    other = assemble_matrix(p.pattern, Ke)[:-3, :-3]  # another pattern: a fresh factorisation
+    assert first.refactor(other) is not first
