@@ -7,6 +7,8 @@ Layout of the output folder:
     manifest.json                scene, scene hash, grid, counts and per-snapshot stats
 Each nonlinear angle is one path, warm-started from one displacement to the next. A path that was
 interrupted resumes from its last written snapshot; finished snapshots are never recomputed.
+On a mirror-symmetric scene (mirror.py) only the paths with beta >= 0 are solved; each beta < 0
+snapshot is the reflection of its beta > 0 twin (marked `mirrored_from` in the file).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 
 from . import mesh as meshmod
 from .io import atomic_savez, atomic_write_json, mesh_for_scene
+from .mirror import guide_is_mirrored, mirror_map, reflect
 from .problem import build_problem
 from .scene import Scene, SceneError, parse_scene
 from .solve import ConvergenceError, PathState, Stats, linear_modes, solve_path
@@ -139,6 +142,34 @@ def _write_linear(scene: Scene, mesh: meshmod.TetMesh, out: Path, pending: list[
         progress.update(1)
 
 
+def _mirror_pairs(scene: Scene, mesh: meshmod.TetMesh, paths: list[list[Case]]):
+    """(node mirror map, {negative-angle path index: its positive twin's index}), or (None, {})."""
+    if not guide_is_mirrored(scene):
+        return None, {}
+    angles = [p[0].angle_deg for p in paths]
+    twins = {i: angles.index(-a) for i, a in enumerate(angles) if a < 0 and -a in angles}
+    if not twins:
+        return None, {}
+    image = mirror_map(mesh)
+    return (image, twins) if image is not None else (None, {})
+
+
+def _write_mirrored(out: Path, paths, twins: dict[int, int], image: np.ndarray) -> int:
+    """Reflect every finished beta > 0 snapshot into its missing beta < 0 twin."""
+    written = 0
+    for neg, pos in twins.items():
+        for case, src in zip(paths[neg], paths[pos]):
+            target, source = out / "snapshots" / case.name, out / "snapshots" / src.name
+            if target.exists() or not source.exists():
+                continue
+            with np.load(source) as z:
+                extra = {k: z[k] for k in z.files if k not in ("displacement", "angle_deg", "displacement_mm")}
+                atomic_savez(target, displacement=reflect(z["displacement"], image), displacement_mm=case.displacement_mm,
+                             angle_deg=case.angle_deg, mirrored_from=src.name, **extra)
+            written += 1
+    return written
+
+
 def _count(out: Path) -> int:
     return sum(1 for _ in (out / "snapshots").glob("a*_d*.npz")) if (out / "snapshots").exists() else 0
 
@@ -190,8 +221,12 @@ def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str
         if not scene.effects.geometric_nonlinearity:
             _write_linear(scene, mesh, out, [c for p in pending for c in p], progress)
         elif n_pending:
-            todo = [full for full, p in zip(paths, pending) if p]
-            errors = _run_pool(scene.model_dump_json(), out, todo, workers, scheduler, progress)
+            image, twins = _mirror_pairs(scene, mesh, paths)
+            # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
+            todo = [full for i, (full, p) in enumerate(zip(paths, pending)) if p and i not in twins]
+            errors = _run_pool(scene.model_dump_json(), out, todo, workers, scheduler, progress) if todo else []
+            if twins:
+                progress.update(_write_mirrored(out, paths, twins, image))
     manifest = write_manifest(scene, mesh, out, paths, seconds=time.perf_counter() - t0, errors=errors)
     return manifest
 
@@ -210,6 +245,7 @@ def write_manifest(scene: Scene, mesh: meshmod.TetMesh, out: Path, paths, *, sec
                     "residual": float(z["residual"]),
                     "min_det_f": float(z["min_det_f"]),
                     "seconds": float(z["seconds"]),
+                    **({"mirrored_from": str(z["mirrored_from"])} if "mirrored_from" in z.files else {}),
                 })
     manifest = {
         "scene_name": scene.name,
@@ -223,6 +259,7 @@ def write_manifest(scene: Scene, mesh: meshmod.TetMesh, out: Path, paths, *, sec
         "displacements_mm": scene.sweep.displacements_mm.tolist(),
         "n_expected": sum(len(p) for p in paths),
         "n_done": len(rows),
+        "n_mirrored": sum("mirrored_from" in r for r in rows),
         "wall_seconds_this_run": seconds,
         "errors": errors,
         "snapshots": rows,

@@ -153,3 +153,15 @@ def test_solve_reuses_a_saved_mesh_and_rejects_a_foreign_one(tmp_path, tiny_mesh
     foreign = save(renamed, tmp_path / "foreign.vtu")
     run = _cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", foreign, "--displacement-mm", 0.5, "--angle-deg", 0, "--out", out)
     assert run.returncode == 2 and "liver" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_symmetric_sweep_solves_half_and_reflects_the_rest(tmp_path, tiny_problem):
+    """Angles -10 and +10: only +10 is solved; the -10 snapshots are its reflections and equal a
+    direct nonlinear solve at -10 deg (the mesh and the guide are mirror-symmetric)."""
+    scene = load_scene(_scene_file(tmp_path, "mini", MINI))
+    manifest = run_sweep(scene, tmp_path / "sweep")
+    assert manifest["n_done"] == 4 and manifest["n_mirrored"] == 2 and not manifest["errors"]
+    with np.load(tmp_path / "sweep" / "snapshots" / "a000_d001.npz") as z:  # -10 deg, 2 mm
+        assert str(z["mirrored_from"]) == "a001_d001.npz" and float(z["angle_deg"]) == -10.0
+        direct, _ = S.solve_case(tiny_problem, 2.0, -10.0, step_mm=1.0)
+        np.testing.assert_allclose(z["displacement"], direct, atol=1e-6 * np.abs(direct).max())
