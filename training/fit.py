@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import platform
 import time
@@ -157,7 +156,3 @@ def summary_line(manifest: dict) -> str:
     if m["offgrid_summary"]:
         line += f"; off-grid ({m['offgrid_summary']['n_cases']}): e_NN {m['offgrid_summary']['e_nn_mm']:.4f} mm"
     return line + f"; onnx vs float64 {m['onnx_vs_float64_max_abs_mm']:.2e} mm"
-
-
-def dumps(manifest: dict) -> str:
-    return json.dumps(manifest, indent=2)

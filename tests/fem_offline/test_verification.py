@@ -2,10 +2,9 @@
 
 import numpy as np
 import pytest
-from skfem import FacetBasis, ElementTetP2, LinearForm, MeshTet
+from skfem import ElementTetP2, LinearForm, MeshTet
 
 from fem_offline import elasticity as el
-from fem_offline.assembly import assemble_vector
 
 from .fe_helpers import internal_force_nh, lame_params, lame_sphere_error, p2_data, solve_linear
 

@@ -1,8 +1,5 @@
 """The ONNX graph against torch and a float64 numpy reference, the subset branch, the model folder."""
 
-import json
-import os
-import shutil
 
 import numpy as np
 import onnxruntime as ort
