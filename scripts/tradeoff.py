@@ -33,7 +33,7 @@ from fem_offline.scene import load_scene  # noqa: E402
 from fem_offline.solve import linear_modes  # noqa: E402
 from service.model import PointLocator, p2_weights  # noqa: E402
 from training.export import build_graph, folded_layers  # noqa: E402
-from training.fit import PAPER_TEST_CASES, _held_out_mask  # noqa: E402
+from training.fit import PAPER_TEST_CASES, training_set  # noqa: E402
 from training.network import train  # noqa: E402
 from training.pca import fit_pca  # noqa: E402
 from training.snapshots import read_cases, read_sweep  # noqa: E402
@@ -146,11 +146,7 @@ def held_out(sess, inputs, reference) -> tuple[float, float]:
 
 def surrogate_rows(sweep, offgrid_inputs, offgrid_disp) -> list[dict]:
     s = sweep.snapshots
-    test = _held_out_mask(s.inputs, PAPER_TEST_CASES)
-    tr = s.select(~test)
-    angles = np.unique(s.inputs[:, 1])
-    inputs = np.concatenate([tr.inputs, np.stack([np.zeros_like(angles), angles], axis=1)])
-    x = np.concatenate([tr.displacement.reshape(len(tr), -1), np.zeros((len(angles), tr.displacement[0].size))])
+    test, inputs, x = training_set(s, PAPER_TEST_CASES)
     ho_inputs = np.concatenate([s.inputs[test], offgrid_inputs])
     ho_ref = np.concatenate([s.displacement[test], offgrid_disp])
     rows, pcas = [], {}

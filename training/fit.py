@@ -40,6 +40,17 @@ def _held_out_mask(inputs: np.ndarray, cases) -> np.ndarray:
     return mask
 
 
+def training_set(data, test_cases) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(held-out mask, inputs (n, 2), rows (n, 3 n_nodes)) for fitting: the snapshots not held out,
+    plus the unloaded state (u = 0 at every sweep angle), known exactly, so the envelope starts at 0 mm."""
+    test = _held_out_mask(data.inputs, test_cases)
+    kept = data.select(~test)
+    angles = np.unique(data.inputs[:, 1])
+    inputs = np.concatenate([kept.inputs, np.stack([np.zeros_like(angles), angles], axis=1)])
+    rows = np.concatenate([kept.displacement.reshape(len(kept), -1), np.zeros((len(angles), 3 * len(data.reference_positions)))])
+    return test, inputs, rows
+
+
 def _session(onnx_bytes: bytes):
     import onnxruntime as ort
 
@@ -67,7 +78,6 @@ def _versions() -> dict[str, str]:
 
 def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None = None, progress: bool = True) -> dict:
     """Run the whole pipeline and write `out`; returns the manifest."""
-    import torch
     from tqdm import tqdm
 
     from .export import build_graph, folded_layers, reference_decode
@@ -88,15 +98,10 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         if offgrid_disp.shape[1] != len(sweep.mesh.nodes):
             raise ValueError(f"--offgrid: cases have {offgrid_disp.shape[1]} nodes, the sweep's mesh {len(sweep.mesh.nodes)}")
 
-    test = _held_out_mask(data.inputs, options.test_cases)
-    train_set = data.select(~test)
-    # The unloaded state is known exactly (u = 0 at every angle); adding it lets the envelope start at 0 mm.
-    angles = np.unique(data.inputs[:, 1])
-    inputs = np.concatenate([train_set.inputs, np.stack([np.zeros_like(angles), angles], axis=1)])
-    x = np.concatenate([train_set.displacement.reshape(len(train_set), -1), np.zeros((len(angles), 3 * len(data.reference_positions)))])
+    test, inputs, x = training_set(data, options.test_cases)
+    n_train, n_zero = int((~test).sum()), len(inputs) - int((~test).sum())
 
     t0 = time.perf_counter()
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     pca = fit_pca(x, options.rank)
     coefficients = pca.encode(x)
     pca_seconds = time.perf_counter() - t0
@@ -128,7 +133,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
                 "energy_by_rank": [float(v) for v in np.cumsum(s2)[:64] / s2.sum()], "method": "snapshots (Gram), float64"},
         "network": {"inputs": ["displacement_mm", "angle_deg"], "width": options.width, "depth": options.depth,
                     "activation": "tanh", "optimizer": "L-BFGS, variable projection", **info,
-                    "n_train": int(len(train_set)), "n_zero_load": int(len(angles))},
+                    "n_train": n_train, "n_zero_load": n_zero},
         "normalisation": {"input_center": scaling.input_center.tolist(), "input_scale": scaling.input_scale.tolist()},
         "envelope": {"displacement_mm": [0.0, float(data.inputs[:, 0].max())],
                      "angle_deg": [float(data.inputs[:, 1].min()), float(data.inputs[:, 1].max())]},
