@@ -35,8 +35,11 @@ class Factor:
     """A factorised symmetric matrix; `solve(b)` reuses the factors (no re-hash of the matrix).
 
     PARDISO runs as SPD Cholesky (mtype 2) on the upper triangle and falls back to symmetric
-    indefinite (mtype -2) if the tangent has lost definiteness.
+    indefinite (mtype -2) if the tangent has lost definiteness. As a preconditioner for a later
+    tangent (modified Newton) it serves while CG needs at most `max_cg` iterations.
     """
+
+    max_cg = 12
 
     def __init__(self, K: sp.csr_matrix):
         self.shape = K.shape
@@ -56,6 +59,7 @@ class Factor:
                 break
             except Exception as exc:  # PyPardisoError: not positive definite
                 log.info("PARDISO mtype %d failed (%s); trying indefinite", mtype, exc)
+                self._ps.free_memory(everything=True)  # else MKL keeps the failed factors
         else:
             raise np.linalg.LinAlgError("PARDISO could not factorise the tangent")
 
@@ -86,6 +90,8 @@ class Factor:
         self._ps.set_phase(33)
         return self._ps._call_pardiso(self._A, np.asfortranarray(b, dtype=np.float64))
 
+    precondition = solve
+
     def __del__(self):
         # pypardiso keeps MKL's factors until told; release them with the last reference.
         if PyPardisoSolver is not None and hasattr(self, "_ps"):
@@ -114,22 +120,32 @@ class AmgSolve:
 
     For SPD systems too large to factorise here. The aggregates carry the rigid-body modes, the
     smoother is symmetric Gauss-Seidel (a free set that splits nodes rules out 3x3 blocks).
-    Measured on the paper-scale linear problem (910,980 unknowns, nu = 0.495): setup 29 s,
-    151 CG iterations to 1e-8 in 145 s, 14 GB resident; on the default mesh it matches PARDISO
-    to 4e-6 mm.
+    Measured on the paper-scale linear problem (910,980 unknowns, nu = 0.495): setup 27 s,
+    5 CG iterations to 1e-2, 28 to 1e-4 and 151 to 1e-8 (145 s), about 0.8 s each; on the
+    default mesh it matches PARDISO to 4e-6 mm. In Newton the hierarchy of one tangent
+    preconditions the later ones while CG needs at most `max_cg` iterations, as a Factor does.
     """
+
+    max_cg = 60
 
     def __init__(self, K: sp.csr_matrix, near_nullspace: np.ndarray, rtol: float = 1e-9):
         import pyamg
 
         self.shape, self.rtol, self.iterations = K.shape, rtol, []
-        self._K = K.tocsr()
+        self._K, self._B = K.tocsr(), near_nullspace
         smoother = ("gauss_seidel", {"sweep": "symmetric"})
         self._ml = pyamg.smoothed_aggregation_solver(
             self._K, B=near_nullspace, symmetry="hermitian", strength=("symmetric", {"theta": 0.0}),
             smooth=("jacobi", {"omega": 4.0 / 3.0, "degree": 1}), presmoother=smoother, postsmoother=smoother,
             max_coarse=2000)
         self._M = self._ml.aspreconditioner(cycle="V")
+
+    def precondition(self, b: np.ndarray) -> np.ndarray:
+        """One V-cycle."""
+        return self._M @ b
+
+    def refactor(self, K: sp.csr_matrix) -> AmgSolve:
+        return AmgSolve(K, self._B, self.rtol)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         from scipy.sparse.linalg import cg
@@ -143,8 +159,9 @@ class AmgSolve:
         return x
 
 
-def factorise(K: sp.csr_matrix, near_nullspace: np.ndarray | None = None, amg_min_dofs: int = AMG_MIN_DOFS):
-    """A solver for K: PARDISO's factors, or AMG-CG when K is too large to factorise (and B is given)."""
-    if near_nullspace is not None and K.shape[0] >= amg_min_dofs:
-        return AmgSolve(K, near_nullspace)
+def factorise(K: sp.csr_matrix, near_nullspace: np.ndarray | None = None, amg_min_dofs: int | None = None,
+              rtol: float = 1e-9):
+    """A solver for K: PARDISO's factors, or AMG-CG to `rtol` when K is too large to factorise (and B is given)."""
+    if near_nullspace is not None and K.shape[0] >= (AMG_MIN_DOFS if amg_min_dofs is None else amg_min_dofs):
+        return AmgSolve(K, near_nullspace, rtol)
     return Factor(K)

@@ -3,8 +3,9 @@
 Equilibrium r(u) = f_int(u) - f_ext = 0 on the free DOFs, u = g on the prescribed ones.
 Newton correction: K_II du_I = -(r_I + K_ID du_D), du_D = g - u_D (so the first iteration of a
 load step is the tangent predictor that carries the guide increment into the interior).
-K_II is solved by conjugate gradients preconditioned with the last PARDISO factorisation; a new
-factorisation is made only when CG needs more than `max_cg` iterations (the old one has drifted).
+K_II is solved by conjugate gradients preconditioned with the last PARDISO factorisation (above
+AMG_MIN_DOFS unknowns, the last AMG hierarchy); a new one is made only when CG needs more than
+its `max_cg` iterations (the old one has drifted).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from .problem import Problem
 
 log = logging.getLogger(__name__)
 
-MAX_CG = 12
 CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
 
 
@@ -100,18 +100,26 @@ def _tangent(p: Problem, ev: Eval) -> np.ndarray:
     return el.linear_stiffness(p.G, p.W, p.mu, p.lam)
 
 
-def _solve_linearised(state: PathState, K, rhs, stats: Stats) -> np.ndarray:
-    """K du = rhs by CG preconditioned with the path's factorisation; refactorise if it drifted."""
-    if state.factor is not None and MAX_CG > 0:
-        M = LinearOperator(K.shape, matvec=state.factor.solve, dtype=np.float64)
+def _solve_linearised(p: Problem, state: PathState, K, rhs, stats: Stats) -> np.ndarray:
+    """K du = rhs by CG preconditioned with the path's factorisation (or AMG hierarchy above
+    AMG_MIN_DOFS); refactorise when CG needs more than the solver's max_cg iterations (it drifted)."""
+    if state.factor is not None:
+        M = LinearOperator(K.shape, matvec=state.factor.precondition, dtype=np.float64)
         count = [0]
-        du, info = cg(K, rhs, rtol=CG_RTOL, maxiter=MAX_CG, M=M, callback=lambda _: count.__setitem__(0, count[0] + 1))
+        du, info = cg(K, rhs, rtol=CG_RTOL, maxiter=state.factor.max_cg, M=M,
+                      callback=lambda _: count.__setitem__(0, count[0] + 1))
         stats.cg_iterations += count[0]
         if info == 0:
             return du
-    state.factor = state.factor.refactor(K) if state.factor is not None else Factor(K)
+    if state.factor is not None:
+        state.factor = state.factor.refactor(K)
+    else:
+        state.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL)
     stats.factorizations += 1
-    return state.factor.solve(rhs)
+    try:
+        return state.factor.solve(rhs)
+    except np.linalg.LinAlgError as exc:  # AMG-CG on a tangent that lost definiteness
+        raise ConvergenceError(str(exc)) from None
 
 
 def newton_step(problem: Problem, state: PathState, g: np.ndarray, stats: Stats) -> np.ndarray:
@@ -137,7 +145,7 @@ def newton_step(problem: Problem, state: PathState, g: np.ndarray, stats: Stats)
         Ke = _tangent(p, ev)
         rhs = -(ev.r + apply_matrix(p.pattern, Ke, du_d))[free]
         step = du_d
-        step[free] = _solve_linearised(state, assemble_matrix(p.pattern, Ke), rhs, stats)
+        step[free] = _solve_linearised(p, state, assemble_matrix(p.pattern, Ke), rhs, stats)
         u, ev = _line_search(p, u, step, ev, prescribed_done)
     raise ConvergenceError(
         f"Newton did not converge in {cfg.max_iterations} iterations (relative residual {stats.residual:.2e})"
@@ -226,6 +234,8 @@ def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: Path
                     f"no equilibrium found for guide displacement {target:.4g} mm at beta {angle_deg:g} deg "
                     f"(last converged: {last:.4g} mm; load step halved {problem.scene.solver.max_halvings} times): {exc}"
                 ) from None
+            log.info("%.4g mm at beta %g deg: %d Newton iterations, %d CG, %d factorisations, %.1f s so far",
+                     target, angle_deg, stats.iterations, stats.cg_iterations, stats.factorizations, time.perf_counter() - t0)
         stats.seconds = time.perf_counter() - t0
         yield float(d), state.u.reshape(-1, 3).copy(), stats
 

@@ -47,3 +47,17 @@ def test_refactor_reuses_the_analysis_and_gives_a_fresh_factors_answer(tiny_line
     np.testing.assert_allclose(again.solve(rhs), Factor(2.5 * K).solve(rhs), rtol=1e-10, atol=1e-12)
     other = assemble_matrix(p.pattern, Ke)[:-3, :-3]  # another pattern: a fresh factorisation
     assert first.refactor(other) is not first
+
+
+def test_newton_with_amg_tangent_solves_reaches_pardisos_equilibrium(tiny_problem, monkeypatch):
+    """Above AMG_MIN_DOFS Newton's tangent solves are AMG-preconditioned CG (the hierarchy of an
+    earlier tangent reused while CG stays short); it must converge to the same state."""
+    import fem_offline.linsolve as ls
+    from fem_offline import solve as S
+
+    u_direct, direct = S.solve_case(tiny_problem, 2.5, 10.0)
+    monkeypatch.setattr(ls, "AMG_MIN_DOFS", 0)
+    u_amg, amg = S.solve_case(tiny_problem, 2.5, 10.0)
+    assert amg.cg_iterations > direct.cg_iterations  # the AMG path ran
+    assert amg.residual <= tiny_problem.scene.solver.rtol
+    assert np.abs(u_amg - u_direct).max() < 1e-4 * np.abs(u_direct).max()

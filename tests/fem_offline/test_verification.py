@@ -113,3 +113,30 @@ def test_einsum_stiffness_equals_scikit_fem_bilinear_form():
     ref = asm(linear_elasticity, vb, lam=np.repeat(lam[:, None], nq, 1), mu=np.repeat(mu[:, None], nq, 1)).toarray()
     # scikit-fem numbers vector DOFs node-major (3 * node + component), as the kernel does.
     np.testing.assert_allclose(K, ref, atol=1e-9 * np.abs(ref).max())
+
+
+def test_pattern_assembles_what_scipy_sums_when_the_free_set_splits_nodes():
+    """K_II through the precomputed slots equals scipy's COO sum over the free rows and columns,
+    also where a node keeps only some components free (the table's u_z = 0)."""
+    import scipy.sparse as sp
+
+    from fem_offline.assembly import assemble_matrix, build_pattern
+
+    nodes, tets, _, _, _ = p2_data(_cube(2))
+    rng = np.random.default_rng(2)
+    constrained = rng.choice(3 * len(nodes), size=len(nodes), replace=False)
+    free = np.setdiff1d(np.arange(3 * len(nodes)), constrained)
+    Ke = rng.standard_normal((len(tets), 10, 3, 10, 3))
+    K = assemble_matrix(build_pattern(tets, len(nodes), free), Ke)
+
+    edofs = (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 30)
+    rows = np.broadcast_to(edofs[:, :, None], (len(tets), 30, 30)).ravel()
+    cols = np.broadcast_to(edofs[:, None, :], (len(tets), 30, 30)).ravel()
+    n = 3 * len(nodes)
+    ref = sp.coo_matrix((Ke.ravel(), (rows, cols)), shape=(n, n)).tocsr()[free][:, free]
+    ref.sum_duplicates()
+    ref.sort_indices()
+    assert K.has_sorted_indices
+    np.testing.assert_array_equal(K.indptr, ref.indptr)
+    np.testing.assert_array_equal(K.indices, ref.indices)
+    np.testing.assert_allclose(K.data, ref.data, atol=1e-12)
