@@ -1,4 +1,4 @@
-"""Command line: `python -m fem_offline solve|sweep|mesh ...`; bad input gets one line, exit code 2."""
+"""Command line: `python -m fem_offline solve|sweep|cases|mesh ...`; bad input gets one line, exit code 2."""
 
 from __future__ import annotations
 
@@ -45,14 +45,24 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("--workers", type=int, default=2, help="local processes, one path each (default 2)")
     w.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
 
-    m = sub.add_parser("mesh", help="mesh the scene and write it (.vtu, .msh or .xdmf)")
+    c = sub.add_parser("cases", help="solve random off-grid cases inside the sweep's envelope (held-out set; resumable)")
+    c.add_argument("--scene", required=True, type=Path)
+    c.add_argument("--out", required=True, type=Path, help="output folder (offgrid_NNN.npz + mesh.npz)")
+    c.add_argument("--n", type=int, default=24, help="number of cases (default 24)")
+    c.add_argument("--seed", type=int, default=0, help="random seed of the draw (default 0)")
+    c.add_argument("--mesh", type=Path, help="the sweep's mesh.npz, so the cases share its nodes (default: mesh the scene)")
+    c.add_argument("--workers", type=int, default=2, help="local processes, one case each (default 2)")
+
+    m = sub.add_parser("mesh", help="mesh the scene and write it (.npz, .vtu, .msh or .xdmf)")
     m.add_argument("--scene", required=True, type=Path)
     m.add_argument("--out", required=True, type=Path)
     return ap
 
 
 def _solve(args) -> None:
-    from .io import atomic_savez, load_or_build_mesh
+    from contracts import sweep as folder
+
+    from .io import load_or_build_mesh
     from .problem import build_problem
     from .solve import solve_case
 
@@ -64,15 +74,9 @@ def _solve(args) -> None:
     mesh = load_or_build_mesh(scene, args.mesh)
     problem = build_problem(scene, mesh)
     u, stats = solve_case(problem, args.displacement_mm, args.angle_deg, step_mm=args.step_mm)
-    atomic_savez(
-        args.out,
-        reference_positions=mesh.nodes,
-        displacement=u,
-        displacement_mm=args.displacement_mm,
-        angle_deg=args.angle_deg,
-        scene_sha256=scene.sha256(),
-        **stats.record(),
-    )
+    folder.write_case(args.out, u, displacement_mm=args.displacement_mm, angle_deg=args.angle_deg,
+                      record=folder.CaseRecord(**stats.record()), reference_positions=mesh.nodes,
+                      scene_sha256=scene.sha256())
     print(
         f"{args.out}: {len(mesh.nodes)} nodes, max |u| {np.linalg.norm(u, axis=1).max():.4f} mm, "
         f"{stats.iterations} Newton iterations, min det F {stats.min_det_f:.3f}, {stats.seconds:.1f} s"
@@ -87,18 +91,36 @@ def _sweep(args) -> int:
     if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
     manifest = run_sweep(load_scene(args.scene), args.out, workers=args.workers, scheduler=args.scheduler)
-    print(f"{args.out}: {manifest['n_done']}/{manifest['n_expected']} snapshots, {manifest['wall_seconds_this_run']:.1f} s this run")
-    for err in manifest["errors"]:
+    print(f"{args.out}: {manifest.n_done}/{manifest.n_expected} snapshots, {manifest.wall_seconds_this_run:.1f} s this run")
+    for err in manifest.errors:
         print(f"failed: {err}", file=sys.stderr)
-    return 1 if manifest["errors"] else 0
+    return 1 if manifest.errors else 0
+
+
+def _cases(args) -> int:
+    from .cases import mesh_for_cases, solve_cases
+    from .io import load_or_build_mesh
+
+    if args.n < 1:
+        raise ValueError("--n: must be at least 1")
+    if args.workers < 1:
+        raise ValueError("--workers: must be at least 1")
+    scene = load_scene(args.scene)
+    args.out.mkdir(parents=True, exist_ok=True)
+    mesh_path = mesh_for_cases(load_or_build_mesh(scene, args.mesh), args.out)
+    failures = solve_cases(scene, mesh_path, args.out, args.n, args.seed, workers=args.workers)
+    print(f"{args.out}: {args.n - len(failures)}/{args.n} cases solved (seed {args.seed})")
+    for err in failures:
+        print(f"failed: {err}", file=sys.stderr)
+    return 1 if failures else 0
 
 
 def _mesh(args) -> None:
     from .io import mesh_for_scene
     from .mesh import save
 
-    if args.out.suffix not in (".vtu", ".msh", ".xdmf"):
-        raise ValueError(f"--out: use .vtu, .msh or .xdmf, got {args.out.suffix or 'no suffix'}")
+    if args.out.suffix not in (".npz", ".vtu", ".msh", ".xdmf"):
+        raise ValueError(f"--out: use .npz, .vtu, .msh or .xdmf, got {args.out.suffix or 'no suffix'}")
     mesh = mesh_for_scene(load_scene(args.scene))
     save(mesh, args.out)
     print(f"{args.out}: {len(mesh.tets)} tets, {len(mesh.nodes)} nodes, {3 * len(mesh.nodes)} DOFs")
@@ -110,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     from .solve import ConvergenceError
 
     try:
-        return {"solve": _solve, "sweep": _sweep, "mesh": _mesh}[args.command](args) or 0
+        return {"solve": _solve, "sweep": _sweep, "cases": _cases, "mesh": _mesh}[args.command](args) or 0
     except (SceneError, ValueError, ConvergenceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

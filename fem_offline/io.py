@@ -1,42 +1,12 @@
-"""Atomic file writes and the mesh a scene describes."""
+"""The mesh a scene describes: meshed from the phantom, read from the user's file, or reloaded."""
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from pathlib import Path
-
-import numpy as np
 
 from . import mesh as meshmod
 from .regions import build_node_sets
 from .scene import Scene
-
-
-def atomic_savez(path: str | Path, **arrays) -> Path:
-    """np.savez to a temporary file beside `path`, then rename: readers never see half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def atomic_write_json(path: str | Path, data: dict) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(data, fh, indent=2)
-    os.replace(tmp, path)
-    return path
 
 
 def mesh_for_scene(scene: Scene) -> meshmod.TetMesh:

@@ -9,38 +9,23 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from contracts.mesh import TetMesh, read_mesh, write_mesh
+from contracts.tet10 import EDGES
+
 from .scene import Scene
 
-GMSH_TO_VTK_TET10 = np.array([0, 1, 2, 3, 4, 5, 6, 7, 9, 8])
-EDGES_VTK_TET10 = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
-SET_PREFIX = "set:"
+SET_PREFIX = "set:"  # point-data name prefix of a node set in meshio formats
 
 
-@dataclass(frozen=True)
-class TetMesh:
-    nodes: np.ndarray  # (n_nodes, 3) mm
-    tets: np.ndarray  # (n_tets, 10) tetra10, VTK order
-    tissue: np.ndarray  # (n_tets,) index into tissue_names
-    tissue_names: tuple[str, ...]
-    node_sets: dict[str, np.ndarray] = field(default_factory=dict)  # name -> sorted node ids
+def skfem_mesh(mesh: TetMesh):
+    """The linear (corner-vertex) skfem mesh whose P2 DOFs are these nodes."""
+    from skfem import MeshTet
 
-    @property
-    def n_vertices(self) -> int:
-        return int(self.tets[:, :4].max()) + 1
-
-    def skfem_mesh(self):
-        """The linear (corner-vertex) skfem mesh whose P2 DOFs are these nodes."""
-        from skfem import MeshTet
-
-        return MeshTet(self.nodes[: self.n_vertices].T.copy(), self.tets[:, :4].T.copy())
-
-    def with_sets(self, **sets: np.ndarray) -> TetMesh:
-        return TetMesh(self.nodes, self.tets, self.tissue, self.tissue_names, {**self.node_sets, **sets})
+    return MeshTet(mesh.nodes[: mesh.n_vertices].T.copy(), mesh.tets[:, :4].T.copy())
 
 
 def from_vertices(points: np.ndarray, tets4: np.ndarray, tissue: np.ndarray, names) -> TetMesh:
@@ -59,7 +44,7 @@ def from_vertices(points: np.ndarray, tets4: np.ndarray, tissue: np.ndarray, nam
     nodes = basis.doflocs.T.copy()
     tets10 = basis.element_dofs.T.copy()
     # Put the edge nodes in VTK order by matching midpoints (independent of skfem's edge order).
-    mid = 0.5 * (nodes[tets10[:, EDGES_VTK_TET10[:, 0]]] + nodes[tets10[:, EDGES_VTK_TET10[:, 1]]])
+    mid = 0.5 * (nodes[tets10[:, EDGES[:, 0]]] + nodes[tets10[:, EDGES[:, 1]]])
     d = np.linalg.norm(mid[:, :, None, :] - nodes[tets10[:, None, 4:]], axis=-1)  # (m, 6, 6)
     order = d.argmin(axis=2)
     tets10[:, 4:] = np.take_along_axis(tets10[:, 4:], order, axis=1)
@@ -67,10 +52,13 @@ def from_vertices(points: np.ndarray, tets4: np.ndarray, tissue: np.ndarray, nam
 
 
 def save(mesh: TetMesh, path: str | Path) -> Path:
-    """Write the mesh with meshio (.vtu, .msh, .xdmf); tissue names go to a .json sidecar. Atomic but for .xdmf."""
+    """Write the mesh: .npz (the stages' own format), or with meshio (.vtu, .msh, .xdmf) with tissue names
+    in a .json sidecar. Atomic but for .xdmf."""
     import meshio
 
     path = Path(path)
+    if path.suffix == ".npz":
+        return write_mesh(path, mesh)
     point_data = {}
     for name, ids in mesh.node_sets.items():
         mask = np.zeros(len(mesh.nodes), dtype=np.int32)
@@ -89,10 +77,12 @@ def save(mesh: TetMesh, path: str | Path) -> Path:
 
 
 def load(path: str | Path) -> TetMesh:
-    """Read a mesh written by `save` (any meshio format) back into a TetMesh."""
+    """Read a mesh written by `save` (.npz or any meshio format) back into a TetMesh."""
     import meshio
 
     path = Path(path)
+    if path.suffix == ".npz":
+        return read_mesh(path)
     m = meshio.read(path)
     names = tuple(json.loads(path.with_suffix(".json").read_text())["tissue_names"])
     tets = m.get_cells_type("tetra10")

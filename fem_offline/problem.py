@@ -16,7 +16,7 @@ import numpy as np
 
 from . import elasticity as el
 from .assembly import Pattern, assemble_vector, build_pattern
-from .mesh import TetMesh
+from .mesh import TetMesh, skfem_mesh
 from .regions import guide_weights
 from .scene import Scene
 
@@ -92,7 +92,7 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     """Assemble-ready data for the effects the scene switches on."""
     from skfem import Basis, ElementTetP2
 
-    basis = Basis(mesh.skfem_mesh(), ElementTetP2(), intorder=2)
+    basis = Basis(skfem_mesh(mesh), ElementTetP2(), intorder=2)
     if not np.allclose(basis.doflocs.T, mesh.nodes, atol=1e-9 * np.abs(mesh.nodes).max()):
         raise ValueError("mesh nodes are not in scikit-fem's P2 DOF order; build it with mesh.from_vertices")
     tets = basis.element_dofs.T  # skfem local order, matching basis.basis below

@@ -1,12 +1,9 @@
 """Snapshot sweep over guide displacement x angle: resumable, atomic, on a process pool or Dask.
 
-Layout of the output folder:
-    scene.json                   the validated scene and its sha256 (a resumed sweep must match it)
-    mesh.vtu, mesh.json          the P2 mesh with tissue tags and node sets (meshio)
-    snapshots/a{i}_d{j}.npz      one case: displacement (n_nodes, 3) float64 mm + solver stats
-    manifest.json                scene, scene hash, grid, counts and per-snapshot stats
+The output folder's format is contracts.sweep (manifest.json, mesh.npz, snapshots/*.npz).
 Each nonlinear angle is one path, warm-started from one displacement to the next. A path that was
-interrupted resumes from its last written snapshot; finished snapshots are never recomputed.
+interrupted resumes from its last written snapshot; finished snapshots are never recomputed, and a
+folder of another scene is refused.
 On a mirror-symmetric scene (mirror.py) only the paths with beta >= 0 are solved; each beta < 0
 snapshot is the reflection of its beta > 0 twin (marked `mirrored_from` in the file).
 """
@@ -25,15 +22,17 @@ from pathlib import Path
 
 import numpy as np
 
-from . import mesh as meshmod
-from .io import atomic_savez, atomic_write_json, mesh_for_scene
+from contracts import sweep as folder
+from contracts.files import atomic_savez, sha256
+from contracts.mesh import TetMesh, read_mesh, write_mesh
+
+from .io import mesh_for_scene
 from .mirror import guide_is_mirrored, mirror_map, reflect
 from .problem import build_problem
 from .scene import Scene, SceneError, parse_scene
 from .solve import ConvergenceError, PathState, Stats, linear_modes, solve_path
 
 log = logging.getLogger(__name__)
-MESH_NAME = "mesh.vtu"
 
 
 @dataclass(frozen=True)
@@ -44,8 +43,9 @@ class Case:
     displacement_mm: float
 
     @property
-    def name(self) -> str:
-        return f"a{self.angle_index:03d}_d{self.displacement_index:03d}.npz"
+    def file(self) -> str:
+        """Path inside the sweep folder."""
+        return folder.snapshot_file(self.angle_index, self.displacement_index)
 
 
 def grid(scene: Scene) -> list[list[Case]]:
@@ -58,30 +58,22 @@ def grid(scene: Scene) -> list[list[Case]]:
 
 
 def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats) -> None:
-    atomic_savez(
-        out / "snapshots" / case.name,
-        displacement=displacement,
-        displacement_mm=case.displacement_mm,
-        angle_deg=case.angle_deg,
-        **stats.record(),
-    )
+    folder.write_case(out / case.file, displacement, displacement_mm=case.displacement_mm, angle_deg=case.angle_deg,
+                      record=folder.CaseRecord(**stats.record()))
 
 
-def prepare(scene: Scene, out: Path) -> meshmod.TetMesh:
+def prepare(scene: Scene, out: Path) -> TetMesh:
     """Create the output folder and its mesh, or check that it belongs to this scene (resume)."""
     out.mkdir(parents=True, exist_ok=True)
-    stamp = out / "scene.json"
-    if stamp.exists():
-        old = json.loads(stamp.read_text())
-        if old["scene_sha256"] != scene.sha256():
-            raise SceneError(f"{out} holds a sweep of another scene (sha256 {old['scene_sha256'][:12]}); use a new --out")
-    mesh_path = out / MESH_NAME
+    if (out / folder.MANIFEST).exists():
+        old = folder.read_manifest(out)
+        if old.scene_sha256 != scene.sha256():
+            raise SceneError(f"{out} holds a sweep of another scene (sha256 {old.scene_sha256[:12]}); use a new --out")
+    mesh_path = out / folder.MESH_FILE
     if mesh_path.exists():
-        mesh = meshmod.load(mesh_path)
-    else:
-        mesh = mesh_for_scene(scene)
-        meshmod.save(mesh, mesh_path)
-    atomic_write_json(stamp, {"scene_sha256": scene.sha256(), "scene": scene.model_dump(mode="json")})
+        return read_mesh(mesh_path)
+    mesh = mesh_for_scene(scene)
+    write_mesh(mesh_path, mesh)
     return mesh
 
 
@@ -89,19 +81,19 @@ def prepare(scene: Scene, out: Path) -> meshmod.TetMesh:
 def _problem(scene_json: str, mesh_path: str):
     """Per-process cache: workers build the problem once and reuse it for every path they get."""
     scene = parse_scene(json.loads(scene_json))
-    return build_problem(scene, meshmod.load(mesh_path))
+    return build_problem(scene, read_mesh(mesh_path))
 
 
 def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[Case]]:
     """Start after the last contiguous finished snapshot of the path, warm from its displacement."""
     done = 0
-    while done < len(path) and (out / "snapshots" / path[done].name).exists():
+    while done < len(path) and (out / path[done].file).exists():
         done += 1
     if done == 0:
         return None, path
 
     def load(case: Case) -> np.ndarray:
-        with np.load(out / "snapshots" / case.name) as z:
+        with np.load(out / case.file) as z:
             return z["displacement"].ravel()
 
     state = PathState(load(path[done - 1]), path[done - 1].displacement_mm)
@@ -112,7 +104,7 @@ def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[C
 def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     """Solve the pending cases of one angle, writing each snapshot as soon as it converges."""
     out = Path(out)
-    problem = _problem(scene_json, str(out / MESH_NAME))
+    problem = _problem(scene_json, str(out / folder.MESH_FILE))
     state, todo = _resume_state(out, path)
     if not todo:
         return {"written": 0}
@@ -130,7 +122,7 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     return {"written": written}
 
 
-def _write_linear(scene: Scene, mesh: meshmod.TetMesh, out: Path, pending: list[Case], progress) -> None:
+def _write_linear(scene: Scene, mesh: TetMesh, out: Path, pending: list[Case], progress) -> None:
     """Linear model: one factorisation, two unit solves, every snapshot by superposition."""
     t0 = time.perf_counter()
     u0, ua, ub = linear_modes(build_problem(scene, mesh))
@@ -142,7 +134,7 @@ def _write_linear(scene: Scene, mesh: meshmod.TetMesh, out: Path, pending: list[
         progress.update(1)
 
 
-def _mirror_pairs(scene: Scene, mesh: meshmod.TetMesh, paths: list[list[Case]]):
+def _mirror_pairs(scene: Scene, mesh: TetMesh, paths: list[list[Case]]):
     """(node mirror map, {negative-angle path index: its positive twin's index}), or (None, {})."""
     if not guide_is_mirrored(scene):
         return None, {}
@@ -159,19 +151,31 @@ def _write_mirrored(out: Path, paths, twins: dict[int, int], image: np.ndarray) 
     written = 0
     for neg, pos in twins.items():
         for case, src in zip(paths[neg], paths[pos]):
-            target, source = out / "snapshots" / case.name, out / "snapshots" / src.name
+            target, source = out / case.file, out / src.file
             if target.exists() or not source.exists():
                 continue
             with np.load(source) as z:
                 extra = {k: z[k] for k in z.files if k not in ("displacement", "angle_deg", "displacement_mm")}
                 atomic_savez(target, displacement=reflect(z["displacement"], image), displacement_mm=case.displacement_mm,
-                             angle_deg=case.angle_deg, mirrored_from=src.name, **extra)
+                             angle_deg=case.angle_deg, mirrored_from=src.file, **extra)
             written += 1
     return written
 
 
 def _count(out: Path) -> int:
-    return sum(1 for _ in (out / "snapshots").glob("a*_d*.npz")) if (out / "snapshots").exists() else 0
+    snapshots = out / folder.SNAPSHOTS
+    return sum(1 for _ in snapshots.glob("a*_d*.npz")) if snapshots.exists() else 0
+
+
+def single_threaded_pool(workers: int) -> ProcessPoolExecutor:
+    """A spawned process pool whose workers run MKL/OpenMP on one thread each (one core per job)."""
+    saved = {k: os.environ.get(k) for k in ("MKL_NUM_THREADS", "OMP_NUM_THREADS")}
+    os.environ.update(MKL_NUM_THREADS="1", OMP_NUM_THREADS="1")  # inherited by the spawned workers
+    try:
+        return ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"))
+    finally:
+        for k, v in saved.items():
+            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
 
 
 def _run_pool(scene_json: str, out: Path, paths, workers: int, scheduler: str | None, progress) -> list[str]:
@@ -185,11 +189,7 @@ def _run_pool(scene_json: str, out: Path, paths, workers: int, scheduler: str | 
         results = lambda: client.gather(futures)  # noqa: E731
         closer = client.close
     else:
-        saved = {k: os.environ.get(k) for k in ("MKL_NUM_THREADS", "OMP_NUM_THREADS")}
-        os.environ.update(MKL_NUM_THREADS="1", OMP_NUM_THREADS="1")  # one core per path
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"))
-        for k, v in saved.items():
-            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
+        pool = single_threaded_pool(workers)
         futures = [pool.submit(run_path, scene_json, str(out), p) for p in paths]
         done = lambda: all(f.done() for f in futures)  # noqa: E731
         results = lambda: [f.result() for f in futures]  # noqa: E731
@@ -205,15 +205,16 @@ def _run_pool(scene_json: str, out: Path, paths, workers: int, scheduler: str | 
         closer()
 
 
-def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str | None = None) -> dict:
+def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str | None = None) -> folder.SweepManifest:
     """Solve every case of the scene's grid that is not on disk yet; return the manifest."""
     from tqdm import tqdm
 
     out = Path(out)
     mesh = prepare(scene, out)
     paths = grid(scene)
+    write_manifest(scene, mesh, out, paths, seconds=0.0, errors=[])  # claims the folder for this scene at once
     total = sum(len(p) for p in paths)
-    pending = [[c for c in p if not (out / "snapshots" / c.name).exists()] for p in paths]
+    pending = [[c for c in p if not (out / c.file).exists()] for p in paths]
     n_pending = sum(len(p) for p in pending)
     t0 = time.perf_counter()
     errors: list[str] = []
@@ -227,42 +228,19 @@ def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str
             errors = _run_pool(scene.model_dump_json(), out, todo, workers, scheduler, progress) if todo else []
             if twins:
                 progress.update(_write_mirrored(out, paths, twins, image))
-    manifest = write_manifest(scene, mesh, out, paths, seconds=time.perf_counter() - t0, errors=errors)
-    return manifest
+    return write_manifest(scene, mesh, out, paths, seconds=time.perf_counter() - t0, errors=errors)
 
 
-def write_manifest(scene: Scene, mesh: meshmod.TetMesh, out: Path, paths, *, seconds: float, errors: list[str]) -> dict:
-    rows = []
-    for case in (c for p in paths for c in p):
-        f = out / "snapshots" / case.name
-        if f.exists():
-            with np.load(f) as z:
-                rows.append({
-                    "file": f"snapshots/{case.name}",
-                    "displacement_mm": case.displacement_mm,
-                    "angle_deg": case.angle_deg,
-                    "newton_iterations": int(z["newton_iterations"]),
-                    "residual": float(z["residual"]),
-                    "min_det_f": float(z["min_det_f"]),
-                    "seconds": float(z["seconds"]),
-                    **({"mirrored_from": str(z["mirrored_from"])} if "mirrored_from" in z.files else {}),
-                })
-    manifest = {
-        "scene_name": scene.name,
-        "scene_sha256": scene.sha256(),
-        "mesh": MESH_NAME,
-        "n_nodes": int(len(mesh.nodes)),
-        "n_tets": int(len(mesh.tets)),
-        "n_dofs": int(3 * len(mesh.nodes)),
-        "nonlinear": scene.effects.geometric_nonlinearity,
-        "angles_deg": scene.sweep.angles_deg.tolist(),
-        "displacements_mm": scene.sweep.displacements_mm.tolist(),
-        "n_expected": sum(len(p) for p in paths),
-        "n_done": len(rows),
-        "n_mirrored": sum("mirrored_from" in r for r in rows),
-        "wall_seconds_this_run": seconds,
-        "errors": errors,
-        "snapshots": rows,
-    }
-    atomic_write_json(out / "manifest.json", manifest)
+def write_manifest(scene: Scene, mesh: TetMesh, out: Path, paths, *, seconds: float,
+                   errors: list[str]) -> folder.SweepManifest:
+    """Describe the folder as it is on disk: one record (with sha256) per finished snapshot."""
+    rows = [folder.snapshot_record(out, c.file) for p in paths for c in p if (out / c.file).exists()]
+    grid_ = folder.Grid(displacements_mm=scene.sweep.displacements_mm.tolist(), angles_deg=scene.sweep.angles_deg.tolist())
+    manifest = folder.SweepManifest(
+        scene_name=scene.name, scene_sha256=scene.sha256(), scene=scene.model_dump(mode="json"),
+        mesh_sha256=sha256(out / folder.MESH_FILE), n_nodes=len(mesh.nodes), n_tets=len(mesh.tets),
+        nonlinear=scene.effects.geometric_nonlinearity, grid=grid_, envelope=grid_.envelope,
+        n_expected=sum(len(p) for p in paths), n_done=len(rows), n_mirrored=sum(r.mirrored_from is not None for r in rows),
+        wall_seconds_this_run=seconds, errors=errors, snapshots=rows)
+    folder.write_manifest(out, manifest)
     return manifest

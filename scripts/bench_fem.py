@@ -46,7 +46,7 @@ def skfem_assembly_seconds(problem) -> float:
 
     mesh = problem.mesh
     mu, lam, _ = lame(problem.scene, mesh)
-    basis = Basis(mesh.skfem_mesh(), ElementVector(ElementTetP2()), intorder=2)
+    basis = Basis(skfem_mesh(mesh), ElementVector(ElementTetP2()), intorder=2)
 
     @BilinearForm
     def linear_elasticity(u, v, w):

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 import loadtest  # noqa: E402
 
-from service.model import Predictor, load_model_folder  # noqa: E402
+from service.model import Predictor, read_model_folder  # noqa: E402
 
 
 def _free_port() -> int:
@@ -71,7 +71,7 @@ def main() -> int:
                 time.sleep(0.25)
         else:
             raise SystemExit("error: the service did not become ready in 30 s")
-        folder = load_model_folder(args.model)
+        folder = read_model_folder(args.model)
         predictor = Predictor(folder)
         markers = folder.regions["markers"]
         direct = {"full": np.median(_direct_ms(predictor, None)), "markers": np.median(_direct_ms(predictor, markers))}

@@ -45,7 +45,7 @@ def main() -> None:
         "max_mm": sizes.max_mm / 2, "prostate_mm": sizes.prostate_mm / 2, "guide_mm": sizes.guide_mm / 2})})
     coarse, fine = mesh_for_scene(coarse_scene), mesh_for_scene(fine_scene)
     print(f"coarse {len(coarse.tets)} tets, fine {len(fine.tets)} tets")
-    probe = Basis(fine.skfem_mesh(), ElementTetP2()).probes(coarse.nodes[coarse.node_sets["prostate_surface"]].T)
+    probe = Basis(skfem_mesh(fine), ElementTetP2()).probes(coarse.nodes[coarse.node_sets["prostate_surface"]].T)
     for nonlinear in ([False] if args.linear_only else [False, True]):
         case = (nonlinear, args.displacement_mm, args.angle_deg, args.step_mm)
         uc, tc = _solve(coarse_scene, coarse, *case)

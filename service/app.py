@@ -13,7 +13,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 
-from .model import ModelError, OutsideMesh, Predictor, load_model_folder
+from contracts.model import ModelManifest
+
+from .model import ModelError, OutsideMesh, Predictor, read_model_folder
 from .schemas import MessageReply, PredictReply, ValidationReply, predict_request_model
 from .settings import Settings
 
@@ -65,12 +67,12 @@ class _TooLarge(Exception):
     pass
 
 
-def _allowed_values(manifest: dict, max_points: int, bounds) -> dict[str, str]:
-    (d_lo, d_hi), (a_lo, a_hi) = manifest["envelope"]["displacement_mm"], manifest["envelope"]["angle_deg"]
+def _allowed_values(manifest: ModelManifest, max_points: int, bounds) -> dict[str, str]:
+    (d_lo, d_hi), (a_lo, a_hi) = manifest.envelope.displacement_mm, manifest.envelope.angle_deg
     return {
         "displacement_mm": f"a finite number from {d_lo} to {d_hi} mm, the model's training envelope",
         "angle_deg": f"a finite number from {a_lo} to {a_hi} degrees, the model's training envelope",
-        "region": "one of " + ", ".join(sorted(manifest["regions"])),
+        "region": "one of " + ", ".join(sorted(manifest.regions)),
         "points": f"1 to {max_points} points, each [x, y, z] in mm inside the mesh, within "
                   f"{[round(v, 2) for v in bounds[0]]} to {[round(v, 2) for v in bounds[1]]}",
     }
@@ -86,7 +88,7 @@ PredictorDep = Annotated[Predictor, Depends(get_predictor)]
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app; the model folder is read once, here, so its ranges and regions shape the schema."""
     settings = settings or Settings()  # noqa: annotations below are evaluated: PredictRequest is built here
-    folder = load_model_folder(settings.model)  # ModelError stops the start with a clear message
+    folder = read_model_folder(settings.model)  # ModelError stops the start with a clear message
     manifest = folder.manifest
     bounds = (folder.nodes.min(axis=0).tolist(), folder.nodes.max(axis=0).tolist())
     PredictRequest = predict_request_model(manifest, settings.max_points, bounds)
@@ -98,7 +100,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         app.state.predictor = Predictor(folder, threads=settings.threads)
-        log.info("model %s loaded: %d nodes", manifest["name"], len(folder.nodes))
+        log.info("model %s loaded: %d nodes", manifest.name, len(folder.nodes))
         yield
         app.state.predictor = None
 
@@ -106,7 +108,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         title="Prostate deformation service",
         version="0.1.0",
         description="Deformed prostate and surrounding tissue for a needle-guide displacement and angle, "
-        f"decoded from the PCA + MLP surrogate `{manifest['name']}` in milliseconds.",
+        f"decoded from the PCA + MLP surrogate `{manifest.name}` in milliseconds.",
         lifespan=lifespan,
     )
     app.state.predictor = None
@@ -173,7 +175,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             reply = Response(memoryview(np.ascontiguousarray(positions, dtype="<f4")), media_type=BINARY, headers={
                 "X-Count": str(len(positions)), "X-Layout": "float32 little-endian, count x 3 (x, y, z) mm, deformed positions"})
         else:
-            content = {"model": manifest["name"], "displacement_mm": d, "angle_deg": a, "region": region,
+            content = {"model": manifest.name, "displacement_mm": d, "angle_deg": a, "region": region,
                        "count": len(positions), "positions": positions}
             if region == "markers" or body.points is not None:
                 content["displacements"] = positions - reference
@@ -187,16 +189,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.get("/model")
     def model_summary():
         """The loaded model: input envelope, regions with node counts, accuracy measured at export."""
-        m = manifest["metrics"]
-        return {"name": manifest["name"], "scene": manifest["scene"], "mesh": manifest["mesh"],
-                "envelope": manifest["envelope"], "regions": manifest["regions"], "pca": {
-                    "rank": manifest["pca"]["rank"], "energy": manifest["pca"]["energy"]},
-                "network": {k: manifest["network"][k] for k in ("width", "depth", "activation")},
-                "metrics": {"table3": m["table3_summary"], "offgrid": m["offgrid_summary"],
-                            "angle_floor_mm": m["angle_floor_mm"]},
-                "limits": {"max_points": settings.max_points, "max_body_bytes": settings.max_body_bytes}}
+        return model_reply
 
-    mesh_body = orjson.dumps({"nodes": folder.nodes.astype(np.float32), "tissues": manifest["mesh"]["tissues"],
+    m = manifest.metrics
+    model_reply = {
+        "name": manifest.name, "scene": manifest.scene.model_dump(include={"name", "sha256"}),
+        "mesh": manifest.mesh.model_dump(), "envelope": manifest.envelope.model_dump(), "regions": manifest.regions,
+        "pca": manifest.pca.model_dump(include={"rank", "energy"}),
+        "network": manifest.network.model_dump(include={"width", "depth", "activation"}),
+        "fit": manifest.fit.model_dump(),
+        "metrics": {"table3": m.table3_summary.model_dump(),
+                    "offgrid": m.offgrid_summary.model_dump() if m.offgrid_summary else None,
+                    "angle_floor_mm": m.angle_floor_mm},
+        "limits": {"max_points": settings.max_points, "max_body_bytes": settings.max_body_bytes}}
+
+    mesh_body = orjson.dumps({"nodes": folder.nodes.astype(np.float32), "tissues": manifest.mesh.tissues,
                               "surfaces": {k: v for k, v in folder.surfaces.items()}}, option=orjson.OPT_SERIALIZE_NUMPY)
 
     @app.get("/mesh")
@@ -214,7 +221,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """The model is loaded and answers."""
         if request.app.state.predictor is None:
             raise HTTPException(503, detail="model not loaded")
-        return {"status": "ready", "model": manifest["name"]}
+        return {"status": "ready", "model": manifest.name}
 
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics():

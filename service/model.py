@@ -5,23 +5,14 @@ Only numpy, scipy and onnxruntime here: the service never imports torch, gmsh or
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
-from dataclasses import dataclass
-from pathlib import Path
-
 import numpy as np
 
+from contracts.model import ModelError, ModelFolder, ModelManifest, onnx_session, read_model_folder
+from contracts.tet10 import p2_weights
+
 log = logging.getLogger(__name__)
-
-SUPPORTED_FORMAT = 1
-# Tetra10 edge nodes (VTK order) and the two corners each sits between.
-_EDGES = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
-
-
-class ModelError(ValueError):
-    """The model folder is missing, corrupt or of another format."""
+__all__ = ["ModelError", "ModelFolder", "OutsideMesh", "PointLocator", "Predictor", "p2_weights", "read_model_folder"]
 
 
 class OutsideMesh(ValueError):
@@ -30,58 +21,6 @@ class OutsideMesh(ValueError):
     def __init__(self, index: int):
         super().__init__(f"points[{index}] is outside the mesh")
         self.index = index
-
-
-def _sha256(path: Path) -> str:
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
-
-
-@dataclass(frozen=True)
-class ModelFolder:
-    path: Path
-    manifest: dict
-    nodes: np.ndarray  # (n_nodes, 3) reference positions, mm
-    tets: np.ndarray  # (n_tets, 10)
-    tissue: np.ndarray  # (n_tets,)
-    regions: dict[str, np.ndarray]  # name -> node ids
-    surfaces: dict[str, np.ndarray]  # tissue -> (k, 3) corner triangles
-
-
-def load_model_folder(path: str | Path) -> ModelFolder:
-    """Read a folder written by `training fit`; refuse it if a file is missing or its sha256 differs."""
-    path = Path(path)
-    manifest_path = path / "manifest.json"
-    if not manifest_path.is_file():
-        raise ModelError(f"{path}: no manifest.json; is this a model folder written by `python -m training fit`?")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ModelError(f"{manifest_path}: not valid JSON ({exc})") from None
-    if manifest.get("format_version") != SUPPORTED_FORMAT:
-        raise ModelError(f"{path}: format_version {manifest.get('format_version')!r}, this service reads {SUPPORTED_FORMAT}")
-    for name, digest in manifest.get("files", {}).items():
-        f = path / name
-        if not f.is_file():
-            raise ModelError(f"{path}: {name} is listed in the manifest but missing")
-        if _sha256(f) != digest:
-            raise ModelError(f"{path}: {name} does not match its sha256 in manifest.json (corrupt or replaced)")
-    if not {"model.onnx", "mesh.npz"} <= set(manifest.get("files", {})):
-        raise ModelError(f"{path}: the manifest must list model.onnx and mesh.npz")
-    with np.load(path / "mesh.npz") as z:
-        regions = {k.split("/", 1)[1]: z[k] for k in z.files if k.startswith("region/")}
-        surfaces = {k.split("/", 1)[1]: z[k] for k in z.files if k.startswith("surface/")}
-        folder = ModelFolder(path, manifest, z["nodes"], z["tets"], z["tissue"], regions, surfaces)
-    if len(folder.nodes) != manifest["mesh"]["n_nodes"]:
-        raise ModelError(f"{path}: mesh.npz has {len(folder.nodes)} nodes, the manifest says {manifest['mesh']['n_nodes']}")
-    return folder
-
-
-def p2_weights(bary: np.ndarray) -> np.ndarray:
-    """Quadratic tet shape functions (k, 10) at barycentric coordinates (k, 4), VTK node order."""
-    corners = bary * (2.0 * bary - 1.0)
-    edges = 4.0 * bary[:, _EDGES[:, 0]] * bary[:, _EDGES[:, 1]]
-    return np.concatenate([corners, edges], axis=1)
 
 
 class PointLocator:
@@ -131,19 +70,13 @@ class Predictor:
     """Decode displacements for all nodes, a region, or interior points."""
 
     def __init__(self, folder: ModelFolder, *, threads: int = 1):
-        import onnxruntime as ort
-
         self.folder = folder
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = threads
-        so.inter_op_num_threads = 1
-        so.log_severity_level = 3  # the optional `nodes` input is an initializer by design
-        self.session = ort.InferenceSession(str(folder.path / "model.onnx"), so, providers=["CPUExecutionProvider"])
+        self.session = onnx_session(folder.path / "model.onnx", threads=threads)
         self.locator = PointLocator(folder.nodes, folder.tets)
         self.nodes32 = folder.nodes.astype(np.float32)
 
     @property
-    def manifest(self) -> dict:
+    def manifest(self) -> ModelManifest:
         return self.folder.manifest
 
     def displacement(self, displacement_mm: float, angle_deg: float, nodes: np.ndarray | None = None) -> np.ndarray:

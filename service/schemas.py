@@ -7,6 +7,7 @@ from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
+from contracts.model import ModelManifest
 
 
 def _coordinate(lo: float, hi: float, axis: str):
@@ -25,12 +26,12 @@ class _PredictBase(BaseModel):
         return self
 
 
-def predict_request_model(manifest: dict, max_points: int, bounds_mm: tuple[list, list]) -> type[BaseModel]:
+def predict_request_model(manifest: ModelManifest, max_points: int, bounds_mm: tuple[list, list]) -> type[BaseModel]:
     """A pydantic model whose ranges are the model's training envelope, so /docs and errors state them."""
-    (d_lo, d_hi), (a_lo, a_hi) = manifest["envelope"]["displacement_mm"], manifest["envelope"]["angle_deg"]
+    (d_lo, d_hi), (a_lo, a_hi) = manifest.envelope.displacement_mm, manifest.envelope.angle_deg
     lo, hi = bounds_mm
     Point = tuple[_coordinate(lo[0], hi[0], "x"), _coordinate(lo[1], hi[1], "y"), _coordinate(lo[2], hi[2], "z")]
-    Region = Enum("Region", {name: name for name in sorted(manifest["regions"])}, type=str)
+    Region = Enum("Region", {name: name for name in sorted(manifest.regions)}, type=str)
     return create_model(
         "PredictRequest",
         __base__=_PredictBase,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from contracts.model import CaseErrors, ErrorSummary
+
 # Nodes moving less than this are left out of the angular error: their direction is noise.
 ANGLE_FLOOR_MM = 0.05
 
@@ -32,13 +34,13 @@ def case_errors(predicted: np.ndarray, reference: np.ndarray) -> dict[str, float
     }
 
 
-def summarise(rows: list[dict]) -> dict[str, float]:
+def summarise(rows: list[CaseErrors]) -> ErrorSummary:
     """Worst case over rows for the max metrics; mean of means."""
-    return {
-        "e_nn_mm": max(r["e_nn_mm"] for r in rows),
-        "alpha_deg": max(r["alpha_deg"] for r in rows),
-        "e_r_percent": max(r["e_r_percent"] for r in rows),
-        "mean_mm": float(np.mean([r["mean_mm"] for r in rows])),
-        "p99_mm": max(r["p99_mm"] for r in rows),
-        "n_cases": len(rows),
-    }
+    return ErrorSummary(
+        e_nn_mm=max(r.e_nn_mm for r in rows),
+        alpha_deg=max(r.alpha_deg for r in rows),
+        e_r_percent=max(r.e_r_percent for r in rows),
+        mean_mm=float(np.mean([r.mean_mm for r in rows])),
+        p99_mm=max(r.p99_mm for r in rows),
+        n_cases=len(rows),
+    )

@@ -3,44 +3,47 @@
 from __future__ import annotations
 
 
-def _rows(rows: list[dict]) -> list[str]:
+from contracts.model import CaseErrors, ModelManifest
+
+
+def _rows(rows: list[CaseErrors]) -> list[str]:
     return [
-        f"| {i} | {r['displacement_mm']:.3f} | {r['angle_deg']:.3f} | {r['e_nn_mm']:.4f} | {r['alpha_deg']:.3f} | "
-        f"{r['e_r_percent']:.3f} | {r['mean_mm']:.5f} | {r['p99_mm']:.4f} | {r['max_displacement_mm']:.2f} |"
+        f"| {i} | {r.displacement_mm:.3f} | {r.angle_deg:.3f} | {r.e_nn_mm:.4f} | {r.alpha_deg:.3f} | "
+        f"{r.e_r_percent:.3f} | {r.mean_mm:.5f} | {r.p99_mm:.4f} | {r.max_displacement_mm:.2f} |"
         for i, r in enumerate(rows, 1)
     ]
 
 
-def table3_markdown(manifest: dict, paper: dict) -> str:
-    m = manifest["metrics"]
+def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
+    m = manifest.metrics
     head = ["| Sample | X_disp (mm) | β (°) | e_NN (mm) | α (°) | e_r (%) | mean (mm) | p99 (mm) | max |u| (mm) |",
             "|---|---|---|---|---|---|---|---|---|"]
-    s = m["table3_summary"]
+    s = m.table3_summary
     lines = [
-        f"# Model `{manifest['name']}`: held-out accuracy",
+        f"# Model `{manifest.name}`: held-out accuracy",
         "",
-        f"Scene `{manifest['scene']['name']}` (sha256 {manifest['scene']['sha256'][:12]}), "
-        f"{manifest['mesh']['n_nodes']} nodes, {manifest['mesh']['n_tets']} quadratic tets. "
-        f"PCA rank {manifest['pca']['rank']} (energy {manifest['pca']['energy']:.8f}); "
-        f"MLP {manifest['network']['depth']}x{manifest['network']['width']} tanh, "
-        f"trained in {manifest['timing']['train_seconds']:.1f} s on {manifest['network']['n_train']} snapshots.",
+        f"Scene `{manifest.scene.name}` (sha256 {manifest.scene.sha256[:12]}), "
+        f"{manifest.mesh.n_nodes} nodes, {manifest.mesh.n_tets} quadratic tets. "
+        f"PCA rank {manifest.pca.rank} (energy {manifest.pca.energy:.8f}); "
+        f"MLP {manifest.network.depth}x{manifest.network.width} tanh, "
+        f"trained in {manifest.timing.train_seconds:.1f} s on {manifest.network.n_train} snapshots.",
         "",
         "Errors of the exported float32 ONNX model against the FE solution, over all nodes. "
         f"e_NN: max nodal error; α: max angle between displacement vectors over nodes moving more than "
-        f"{m['angle_floor_mm']} mm; e_r: eq. 2, max component error / max component displacement.",
+        f"{m.angle_floor_mm} mm; e_r: eq. 2, max component error / max component displacement.",
         "",
         "## The paper's five left-out samples (Table 3)",
         "",
-        *head, *_rows(m["table3"]),
+        *head, *_rows(m.table3),
         "",
-        f"Worst: e_NN {s['e_nn_mm']:.4f} mm, α {s['alpha_deg']:.3f}°, e_r {s['e_r_percent']:.3f} %. "
+        f"Worst: e_NN {s.e_nn_mm:.4f} mm, α {s.alpha_deg:.3f}°, e_r {s.e_r_percent:.3f} %. "
         f"Paper: e_NN {paper['e_nn_mm']} mm, α {paper['alpha_deg']}°, e_r {paper['e_r_percent']} %, "
         f"training {paper['train_minutes']} min.",
     ]
-    if m["offgrid"]:
-        o = m["offgrid_summary"]
-        lines += ["", f"## Off-grid cases ({o['n_cases']}, random inside the envelope, solved by `fem_offline solve`)", "",
-                  *head, *_rows(m["offgrid"]), "",
-                  f"Worst: e_NN {o['e_nn_mm']:.4f} mm, α {o['alpha_deg']:.3f}°, e_r {o['e_r_percent']:.3f} %."]
-    lines += ["", f"ONNX (float32) vs float64 numpy reference: max {m['onnx_vs_float64_max_abs_mm']:.2e} mm.", ""]
+    if m.offgrid_summary:
+        o = m.offgrid_summary
+        lines += ["", f"## Off-grid cases ({o.n_cases}, random inside the envelope, solved by `fem_offline cases`)", "",
+                  *head, *_rows(m.offgrid), "",
+                  f"Worst: e_NN {o.e_nn_mm:.4f} mm, α {o.alpha_deg:.3f}°, e_r {o.e_r_percent:.3f} %."]
+    lines += ["", f"ONNX (float32) vs float64 numpy reference: max {m.onnx_vs_float64_max_abs_mm:.2e} mm.", ""]
     return "\n".join(lines)

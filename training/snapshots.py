@@ -1,14 +1,15 @@
-"""Read a sweep folder (mesh.vtu + snapshots/*.npz) or a set of solved cases into arrays."""
+"""Training's view of a sweep folder (contracts.sweep): inputs and displacement fields as arrays."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from fem_offline.mesh import TetMesh, load
+from contracts.sweep import MESH_FILE, Sweep, read_cases, read_sweep
+
+__all__ = ["Snapshots", "Sweep", "read_cases", "read_offgrid", "read_sweep", "snapshots_of"]
 
 
 @dataclass(frozen=True)
@@ -24,40 +25,16 @@ class Snapshots:
         return Snapshots(self.inputs[mask], self.displacement[mask], self.reference_positions)
 
 
-@dataclass(frozen=True)
-class Sweep:
-    snapshots: Snapshots
-    mesh: TetMesh
-    manifest: dict  # the sweep's manifest.json
+def snapshots_of(sweep: Sweep) -> Snapshots:
+    return Snapshots(sweep.inputs, sweep.displacement, sweep.mesh.nodes)
 
 
-def read_cases(files: list[Path]) -> tuple[np.ndarray, np.ndarray]:
-    """Inputs (n, 2) and displacements (n, n_nodes, 3) of solved `.npz` cases, in file order."""
+def read_offgrid(folder: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The solved cases of a `fem_offline cases` folder: inputs (n, 2), displacements (n, n_nodes, 3)."""
+    files = sorted(p for p in Path(folder).glob("*.npz") if p.name != MESH_FILE)
     if not files:
-        raise ValueError("no snapshot files")
-    inputs, disp = [], []
-    for f in files:
-        with np.load(f) as z:
-            inputs.append((float(z["displacement_mm"]), float(z["angle_deg"])))
-            disp.append(z["displacement"])
-    return np.asarray(inputs), np.stack(disp)
-
-
-def read_sweep(folder: str | Path) -> Sweep:
-    """Load a finished sweep; refuse one with missing snapshots (finish it with `fem_offline sweep`)."""
-    folder = Path(folder)
-    manifest_path = folder / "manifest.json"
-    if not manifest_path.exists():
-        raise ValueError(f"--snapshots: {folder} has no manifest.json; is it a `fem_offline sweep` output folder?")
-    manifest = json.loads(manifest_path.read_text())
-    files = sorted((folder / "snapshots").glob("*.npz"))
-    if len(files) != manifest["n_expected"]:
-        raise ValueError(
-            f"--snapshots: {folder} holds {len(files)} of {manifest['n_expected']} snapshots; "
-            "finish the sweep first (rerun the same `fem_offline sweep` command)"
-        )
-    mesh = load(folder / manifest["mesh"])
+        raise ValueError(f"--offgrid: no .npz cases in {folder}")
     inputs, disp = read_cases(files)
-    if disp.shape[1] != len(mesh.nodes):
-        raise ValueError(f"--snapshots: snapshots have {disp.shape[1]} nodes, the mesh {len(mesh.nodes)}")
-    return Sweep(Snapshots(inputs, disp, mesh.nodes), mesh, manifest)
+    if disp.shape[1] != n_nodes:
+        raise ValueError(f"--offgrid: cases have {disp.shape[1]} nodes, the sweep's mesh {n_nodes}")
+    return inputs, disp

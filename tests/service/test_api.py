@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from service.model import load_model_folder
+from service.model import read_model_folder
 
 @pytest.fixture(scope="module")
 def folder(settings):
-    return load_model_folder(settings.model)
+    return read_model_folder(settings.model)
 
 
 def _predict(client, **body):
@@ -42,7 +42,7 @@ def test_region_decodes_its_nodes_and_matches_the_full_mesh(client, folder):
     np.testing.assert_allclose(r["positions"], full[ids], atol=1e-5)
     np.testing.assert_allclose(np.asarray(r["positions"]) - folder.nodes[ids], r["displacements"], atol=1e-5)
     p = _predict(client, region="prostate").json()
-    assert p["count"] == folder.manifest["regions"]["prostate"] and "displacements" not in p
+    assert p["count"] == folder.manifest.regions["prostate"] and "displacements" not in p
 
 
 def test_points_at_nodes_reproduce_the_nodal_answer(client, folder):
@@ -102,7 +102,7 @@ def test_malformed_json_and_oversize_bodies(client):
 
 def test_model_summary(client, folder):
     m = client.get("/model").json()
-    assert m["name"] == "default" and m["envelope"] == folder.manifest["envelope"]
+    assert m["name"] == "default" and m["envelope"] == folder.manifest.envelope.model_dump(mode="json")
     assert m["regions"]["markers"] == 8 and m["metrics"]["table3"]["e_nn_mm"] <= 0.01
     assert m["limits"] == {"max_points": 50, "max_body_bytes": 65536}
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from service.model import Predictor, load_model_folder
+from service.model import Predictor, read_model_folder
 
 from conftest import DEFAULT
 
@@ -12,7 +12,7 @@ CORNERS_AND_EDGES = [(d, a) for d in (0.0, 5.0, 10.0) for a in (-10.0, 0.0, 10.0
 
 @pytest.fixture(scope="module")
 def predictor():
-    return Predictor(load_model_folder(DEFAULT))
+    return Predictor(read_model_folder(DEFAULT))
 
 
 @pytest.mark.parametrize(("d", "a"), CORNERS_AND_EDGES)

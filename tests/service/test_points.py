@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from service.model import PointLocator, load_model_folder, p2_weights
+from service.model import PointLocator, read_model_folder, p2_weights
 
 from conftest import DEFAULT
 
@@ -21,7 +21,7 @@ def test_p2_weights_partition_unity_and_reproduce_quadratics():
 
 
 def test_locator_finds_the_containing_tet_and_rejects_outside_points():
-    folder = load_model_folder(DEFAULT)
+    folder = read_model_folder(DEFAULT)
     loc = PointLocator(folder.nodes, folder.tets)
     rng = np.random.default_rng(1)
     tets = rng.choice(len(folder.tets), 200, replace=False)

@@ -22,7 +22,7 @@ def tiny_sweep(tmp_path_factory) -> Path:
                               "angle_max_deg": 10.0, "angle_step_deg": 2.0})
     out = tmp_path_factory.mktemp("sweep")
     manifest = run_sweep(scene, out)
-    assert manifest["n_done"] == 110
+    assert manifest.n_done == 110
     return out
 
 

@@ -1,13 +1,15 @@
 """`python -m training fit` end to end on a tiny sweep: the folder, its manifest, hashes and atomic writes."""
 
 import json
+import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from service.model import ModelError, Predictor, load_model_folder
+from service.model import ModelError, Predictor, read_model_folder
+from fem_offline.scene import parse_scene
 from training.snapshots import read_sweep
 
 
@@ -16,7 +18,10 @@ def test_folder_holds_what_the_manifest_promises(tiny_model, tiny_sweep, tiny_te
     sweep = read_sweep(tiny_sweep)
     assert m["mesh"]["n_nodes"] == len(sweep.mesh.nodes) and m["mesh"]["n_tets"] == len(sweep.mesh.tets)
     assert m["pca"]["rank"] == 8 and 0.999 < m["pca"]["energy"] <= 1.0
-    assert m["scene"]["sha256"] == sweep.manifest["scene_sha256"]
+    assert m["scene"]["sha256"] == sweep.manifest.scene_sha256
+    assert parse_scene(m["scene"]["spec"]).sha256() == m["scene"]["sha256"]  # the full scene, as solved
+    assert m["fit"] == {"rank": 8, "width": 60, "depth": 1, "max_iterations": 300, "seed": 0,
+                        "test_cases": [list(c) for c in tiny_test_cases]}
     assert m["envelope"] == {"displacement_mm": [0.0, 10.0], "angle_deg": [-10.0, 10.0]}
     assert m["network"]["n_train"] == 110 - 2 and set(m["files"]) == {"model.onnx", "mesh.npz", "report.md"}
     assert {"prostate", "prostate_surface", "markers", "guide_patch", "adipose"} <= set(m["regions"])
@@ -28,25 +33,25 @@ def test_folder_holds_what_the_manifest_promises(tiny_model, tiny_sweep, tiny_te
 
 def test_held_out_metrics_are_recomputed_from_the_shipped_model(tiny_model, tiny_sweep):
     """The manifest's e_NN is what the exported ONNX model gives on the left-out snapshots."""
-    folder = load_model_folder(tiny_model)
+    folder = read_model_folder(tiny_model)
     predictor = Predictor(folder)
-    sweep = read_sweep(tiny_sweep).snapshots
-    for row in folder.manifest["metrics"]["table3"]:
-        i = np.flatnonzero((sweep.inputs[:, 0] == row["displacement_mm"]) & (sweep.inputs[:, 1] == row["angle_deg"]))[0]
+    sweep = read_sweep(tiny_sweep)
+    for row in folder.manifest.metrics.table3:
+        i = np.flatnonzero((sweep.inputs[:, 0] == row.displacement_mm) & (sweep.inputs[:, 1] == row.angle_deg))[0]
         err = np.linalg.norm(predictor.displacement(*sweep.inputs[i]) - sweep.displacement[i], axis=1).max()
-        assert err == pytest.approx(row["e_nn_mm"], rel=1e-3, abs=1e-7)
+        assert err == pytest.approx(row.e_nn_mm, rel=1e-3, abs=1e-7)
         assert err < 0.01 * np.abs(sweep.displacement[i]).max()  # linear data: the fit is tight
 
 
 def test_zero_load_gives_near_zero_displacement(tiny_model):
-    predictor = Predictor(load_model_folder(tiny_model))
+    predictor = Predictor(read_model_folder(tiny_model))
     for angle in (-10.0, 0.0, 10.0):
         assert np.abs(predictor.displacement(0.0, angle)).max() < 2e-3
 
 
 def test_mesh_surfaces_are_closed_and_outward(tiny_model):
     """Each tissue's boundary triangles form a closed surface enclosing positive volume (divergence theorem)."""
-    folder = load_model_folder(tiny_model)
+    folder = read_model_folder(tiny_model)
     for name, tri in folder.surfaces.items():
         p = folder.nodes[tri]
         volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
@@ -65,20 +70,20 @@ def test_corrupt_or_incomplete_folder_is_refused(tiny_model, tmp_path):
         f.seek(100)
         f.write(b"\x00\x01\x02")
     with pytest.raises(ModelError, match="model.onnx does not match its sha256"):
-        load_model_folder(bad)
+        read_model_folder(bad)
     shutil.copy(tiny_model / "model.onnx", bad / "model.onnx")
-    load_model_folder(bad)
+    read_model_folder(bad)
     (bad / "mesh.npz").unlink()
     with pytest.raises(ModelError, match="mesh.npz is listed in the manifest but missing"):
-        load_model_folder(bad)
+        read_model_folder(bad)
     with pytest.raises(ModelError, match="no manifest.json"):
-        load_model_folder(tmp_path)
+        read_model_folder(tmp_path)
 
 
 def test_failed_export_leaves_the_previous_model_intact(tiny_model, tiny_sweep, tiny_test_cases, tmp_path, monkeypatch):
     import shutil
 
-    import training.folder as folder_mod
+    import contracts.model as folder_mod
     from training.fit import FitOptions, fit
 
     out = tmp_path / "m"
@@ -88,12 +93,12 @@ def test_failed_export_leaves_the_previous_model_intact(tiny_model, tiny_sweep, 
     def crash(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(folder_mod, "write_mesh", crash)
+    monkeypatch.setattr(folder_mod, "_write_mesh", crash)
     with pytest.raises(OSError, match="disk full"):
         fit(tiny_sweep, out, FitOptions(rank=4, max_iterations=20, test_cases=tiny_test_cases), progress=False)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m"]  # no temporary folder left behind
-    load_model_folder(out)
+    read_model_folder(out)
 
 
 def _cli(*args):
@@ -125,9 +130,14 @@ def test_unfinished_sweep_is_refused(tiny_sweep, tmp_path):
     assert run.returncode == 2 and "holds 109 of 110 snapshots" in run.stderr
 
 
-def test_cli_writes_a_model_and_prints_its_metrics(tiny_sweep, tmp_path):
-    run = _cli("fit", "--snapshots", tiny_sweep, "--out", tmp_path / "m", "--rank", "4", "--iterations", "50",
-               "--test-case", "5/-2")
+def test_cli_writes_the_model_its_flags_ask_for_and_prints_its_metrics(tiny_sweep, tmp_path):
+    run = _cli("fit", "--snapshots", tiny_sweep, "--out", tmp_path / "m", "--rank", "4", "--width", "12", "--iterations",
+               "50", "--seed", "3", "--test-case", "5/-2")
     assert run.returncode == 0, run.stderr
-    assert "rank 4" in run.stdout and "e_NN" in run.stdout
-    load_model_folder(tmp_path / "m")
+    m = read_model_folder(tmp_path / "m").manifest
+    assert m.fit.model_dump() == {"rank": 4, "width": 12, "depth": 1, "max_iterations": 50, "seed": 3,
+                                  "test_cases": ((5.0, -2.0),)}
+    assert m.pca.rank == 4 and m.network.width == 12 and m.network.iterations <= 50
+    assert [(r.displacement_mm, r.angle_deg) for r in m.metrics.table3] == [(5.0, -2.0)]
+    e_nn = float(re.search(r"e_NN ([0-9.]+) mm", run.stdout).group(1))  # the printed line states the stored metric
+    assert e_nn == pytest.approx(m.metrics.table3_summary.e_nn_mm, abs=5e-5)

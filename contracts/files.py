@@ -1,0 +1,45 @@
+"""File primitives both folders use: sha256 and atomic writes (readers never see half a file)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+
+def sha256(path: str | Path) -> str:
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+@contextmanager
+def _atomic(path: Path, mode: str):
+    """A temporary file beside `path`, renamed over it only if the block finishes."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_savez(path: str | Path, *, compressed: bool = False, **arrays) -> Path:
+    """np.savez to a temporary file beside `path`, then rename."""
+    path = Path(path)
+    with _atomic(path, "wb") as fh:
+        (np.savez_compressed if compressed else np.savez)(fh, **arrays)
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    path = Path(path)
+    with _atomic(path, "w") as fh:
+        fh.write(text)
+    return path

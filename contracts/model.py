@@ -1,0 +1,285 @@
+"""The model folder: what training writes and the service reads.
+
+    model.onnx     guide float32 [batch, 2] (+ optional nodes int64 [k]) -> displacement float32 [batch, k, 3] mm
+    mesh.npz       the reference mesh (contracts.mesh) + region/<name> node ids + surface/<tissue> triangles
+    report.md      the held-out accuracy, laid out like the paper's Table 3
+    manifest.json  ModelManifest: what produced the model and how accurate it is, sha256 of every file
+
+The folder is assembled beside its destination and swapped in by rename, so a crash while writing
+leaves the previous model as it was; the reader checks every hash and refuses a corrupt folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from .envelope import Envelope
+from .files import sha256
+from .mesh import TetMesh, mesh_arrays, read_mesh
+from .tet10 import outward_triangles
+
+MODEL_FORMAT = 2
+FILES = ("model.onnx", "mesh.npz", "report.md")
+# The paper's five left-out samples (Table 3): displacement_mm, angle_deg.
+PAPER_TEST_CASES = ((7.75, -5.0), (4.25, -3.0), (5.25, -2.0), (1.5, -1.0), (2.5, 2.0))
+
+
+class ModelError(ValueError):
+    """The model folder is missing, corrupt or of another format."""
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class FitOptions(_Frozen):
+    """How `training fit` was asked to fit (the CLI's flags)."""
+
+    rank: int = 16
+    width: int = 60
+    depth: int = 1
+    max_iterations: int = 1000
+    seed: int = 0
+    test_cases: tuple[tuple[float, float], ...] = PAPER_TEST_CASES
+
+
+class CaseErrors(_Frozen):
+    """Errors of one held-out case over all nodes (training/metrics.py defines them)."""
+
+    displacement_mm: float
+    angle_deg: float
+    e_nn_mm: float
+    alpha_deg: float
+    e_r_percent: float
+    mean_mm: float
+    p99_mm: float
+    max_displacement_mm: float
+
+
+class ErrorSummary(_Frozen):
+    e_nn_mm: float
+    alpha_deg: float
+    e_r_percent: float
+    mean_mm: float
+    p99_mm: float
+    n_cases: int
+
+
+class Metrics(_Frozen):
+    """The float32 ONNX model against the FE snapshots of its own mesh (held out of training)."""
+
+    angle_floor_mm: float
+    table3: list[CaseErrors]
+    table3_summary: ErrorSummary
+    offgrid: list[CaseErrors] = []
+    offgrid_summary: ErrorSummary | None = None
+    onnx_vs_float64_max_abs_mm: float
+
+
+class SceneInfo(_Frozen):
+    name: str
+    sha256: str
+    spec: dict[str, Any]  # the validated scene the sweep was solved for
+
+
+class SweepInfo(_Frozen):
+    n_snapshots: int
+    nonlinear: bool
+
+
+class MeshInfo(_Frozen):
+    file: str = "mesh.npz"
+    n_nodes: int
+    n_tets: int
+    n_dofs: int
+    tissues: list[str]
+
+
+class PcaInfo(_Frozen):
+    rank: int
+    energy: float
+    energy_by_rank: list[float]
+    method: str
+
+
+class NetworkInfo(_Frozen):
+    inputs: list[str]
+    width: int
+    depth: int
+    activation: str
+    optimizer: str
+    iterations: int
+    final_loss: float
+    seconds: float
+    seed: int
+    n_train: int
+    n_zero_load: int
+
+
+class Normalisation(_Frozen):
+    input_center: list[float]
+    input_scale: list[float]
+
+
+class OnnxInfo(_Frozen):
+    opset: int
+    inputs: dict[str, str]
+    outputs: dict[str, str]
+    basis_dtype: str
+
+
+class Timing(_Frozen):
+    pca_seconds: float
+    train_seconds: float
+    total_seconds: float
+
+
+class ModelManifest(_Frozen):
+    format_version: Literal[2] = MODEL_FORMAT
+    name: str
+    created_utc: str
+    scene: SceneInfo
+    sweep: SweepInfo
+    mesh: MeshInfo
+    fit: FitOptions
+    pca: PcaInfo
+    network: NetworkInfo
+    normalisation: Normalisation
+    envelope: Envelope
+    onnx: OnnxInfo
+    metrics: Metrics
+    timing: Timing
+    versions: dict[str, str]
+    regions: dict[str, int] = {}  # name -> node count; filled by the writer
+    files: dict[str, str] = {}  # name -> sha256; filled by the writer
+
+
+def regions(mesh: TetMesh) -> dict[str, np.ndarray]:
+    """Named node sets the service can decode alone: each tissue, then the mesh's own sets."""
+    out = {name: np.unique(mesh.tets[mesh.tissue == t]) for t, name in enumerate(mesh.tissue_names)}
+    out.update({name: np.asarray(ids) for name, ids in mesh.node_sets.items()})
+    return {name: ids.astype(np.int64) for name, ids in out.items() if len(ids)}
+
+
+def tissue_surfaces(mesh: TetMesh) -> dict[str, np.ndarray]:
+    """Outward corner triangles (k, 3) bounding each tissue, for drawing."""
+    return {name: outward_triangles(mesh.nodes, mesh.tets[mesh.tissue == t]).astype(np.int32)
+            for t, name in enumerate(mesh.tissue_names) if (mesh.tissue == t).any()}
+
+
+def _write_mesh(mesh: TetMesh, path: Path) -> dict[str, int]:
+    sets = regions(mesh)
+    arrays = {**mesh_arrays(mesh), **{f"region/{k}": v for k, v in sets.items()},
+              **{f"surface/{k}": v for k, v in tissue_surfaces(mesh).items()}}
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    return {k: int(len(v)) for k, v in sets.items()}
+
+
+def write_model_folder(out: str | Path, *, onnx_bytes: bytes, mesh: TetMesh, manifest: ModelManifest,
+                       report: str) -> ModelManifest:
+    """Write everything into a temporary sibling folder, then swap it in; returns the final manifest."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    try:
+        (tmp / "model.onnx").write_bytes(onnx_bytes)
+        counts = _write_mesh(mesh, tmp / "mesh.npz")
+        (tmp / "report.md").write_text(report)
+        manifest = manifest.model_copy(update={"regions": counts, "files": {n: sha256(tmp / n) for n in FILES}})
+        (tmp / "manifest.json").write_text(manifest.model_dump_json(indent=2) + "\n")
+        for f in tmp.iterdir():
+            with open(f, "rb") as fh:
+                os.fsync(fh.fileno())
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        if out.exists():
+            os.rename(out, old)
+        os.rename(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return manifest
+
+
+def onnx_session(model: bytes | str | Path, *, threads: int = 1):
+    """An onnxruntime CPU session for a model.onnx (path or bytes) with `threads` intra-op threads.
+
+    onnxruntime is imported here, not at module level: readers of the folder's files need only numpy.
+    """
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.log_severity_level = 3  # the optional `nodes` input is an initializer by design
+    return ort.InferenceSession(model if isinstance(model, bytes) else str(model), so, providers=["CPUExecutionProvider"])
+
+
+@dataclass(frozen=True)
+class ModelFolder:
+    path: Path
+    manifest: ModelManifest
+    mesh: TetMesh
+    regions: dict[str, np.ndarray]  # name -> node ids
+    surfaces: dict[str, np.ndarray]  # tissue -> (k, 3) corner triangles
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.mesh.nodes
+
+    @property
+    def tets(self) -> np.ndarray:
+        return self.mesh.tets
+
+
+def read_manifest(path: str | Path) -> ModelManifest:
+    """The folder's manifest, or ModelError saying why it cannot be used."""
+    path = Path(path)
+    manifest_path = path / "manifest.json"
+    if not manifest_path.is_file():
+        raise ModelError(f"{path}: no manifest.json; is this a model folder written by `python -m training fit`?")
+    try:
+        data = json.loads(manifest_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ModelError(f"{manifest_path}: not valid JSON ({exc})") from None
+    if data.get("format_version") != MODEL_FORMAT:
+        raise ModelError(f"{path}: format_version {data.get('format_version')!r}, this code reads {MODEL_FORMAT}; "
+                         "rebuild the model with `python -m training fit`")
+    try:
+        return ModelManifest.model_validate(data)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        raise ModelError(f"{manifest_path}: {'.'.join(map(str, e['loc']))}: {e['msg']}") from None
+
+
+def read_model_folder(path: str | Path) -> ModelFolder:
+    """Read a model folder; refuse it if a file is missing, its sha256 differs or the mesh disagrees."""
+    path = Path(path)
+    manifest = read_manifest(path)
+    missing = sorted(set(FILES) - set(manifest.files))
+    if missing:
+        raise ModelError(f"{path}: the manifest must list {', '.join(missing)}")
+    for name, digest in manifest.files.items():
+        if not (path / name).is_file():
+            raise ModelError(f"{path}: {name} is listed in the manifest but missing")
+        if sha256(path / name) != digest:
+            raise ModelError(f"{path}: {name} does not match its sha256 in manifest.json (corrupt or replaced)")
+    mesh = read_mesh(path / "mesh.npz")
+    with np.load(path / "mesh.npz") as z:
+        regions_ = {k.split("/", 1)[1]: z[k] for k in z.files if k.startswith("region/")}
+        surfaces = {k.split("/", 1)[1]: z[k] for k in z.files if k.startswith("surface/")}
+    if len(mesh.nodes) != manifest.mesh.n_nodes:
+        raise ModelError(f"{path}: mesh.npz has {len(mesh.nodes)} nodes, the manifest says {manifest.mesh.n_nodes}")
+    if {k: len(v) for k, v in regions_.items()} != manifest.regions:
+        raise ModelError(f"{path}: the regions in mesh.npz differ from the manifest's")
+    return ModelFolder(path, manifest, mesh, regions_, surfaces)

@@ -1,0 +1,175 @@
+"""The sweep folder: what fem_offline writes and training reads.
+
+    manifest.json               SweepManifest: format, the full scene as parsed, grid, envelope,
+                                counts, one record per snapshot (with its sha256), errors
+    mesh.npz                    the P2 mesh (contracts.mesh)
+    snapshots/aIII_dJJJ.npz     one case: displacement (n_nodes, 3) float64 mm, displacement_mm,
+                                angle_deg and the solver's record (CaseRecord fields)
+A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus reference_positions.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from .envelope import Envelope
+from .files import atomic_savez, atomic_write_text, sha256
+from .mesh import TetMesh, read_mesh
+
+SWEEP_FORMAT = 2
+MANIFEST = "manifest.json"
+MESH_FILE = "mesh.npz"
+SNAPSHOTS = "snapshots"
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CaseRecord(_Frozen):
+    """What the solver reports with every solved case."""
+
+    newton_iterations: int
+    factorizations: int = 0
+    cg_iterations: int = 0
+    residual: float  # final ||r_free|| / ||reactions||
+    min_det_f: float
+    seconds: float
+
+
+class SnapshotRecord(_Frozen):
+    file: str
+    sha256: str
+    displacement_mm: float
+    angle_deg: float
+    newton_iterations: int
+    residual: float
+    min_det_f: float
+    seconds: float
+    mirrored_from: str | None = None
+
+
+class Grid(_Frozen):
+    """Guide displacements x angles; each angle is one path of increasing displacement."""
+
+    displacements_mm: list[float]
+    angles_deg: list[float]
+
+    @property
+    def envelope(self) -> Envelope:
+        return Envelope.of_grid(self.displacements_mm, self.angles_deg)
+
+
+def snapshot_file(angle_index: int, displacement_index: int) -> str:
+    """Path of a grid case's snapshot inside the sweep folder."""
+    return f"{SNAPSHOTS}/a{angle_index:03d}_d{displacement_index:03d}.npz"
+
+
+class SweepManifest(_Frozen):
+    format_version: Literal[2] = SWEEP_FORMAT
+    scene_name: str
+    scene_sha256: str
+    scene: dict[str, Any]  # the validated scene (fem_offline.scene.Scene, as JSON)
+    mesh: str = MESH_FILE
+    mesh_sha256: str
+    n_nodes: int
+    n_tets: int
+    nonlinear: bool
+    grid: Grid
+    envelope: Envelope
+    n_expected: int
+    n_done: int
+    n_mirrored: int = 0
+    wall_seconds_this_run: float = 0.0
+    errors: list[str] = []
+    snapshots: list[SnapshotRecord] = []
+
+
+def write_case(path: str | Path, displacement: np.ndarray, *, displacement_mm: float, angle_deg: float,
+               record: CaseRecord, **extra) -> Path:
+    """One solved case, atomically."""
+    return atomic_savez(path, displacement=displacement, displacement_mm=displacement_mm, angle_deg=angle_deg,
+                        **record.model_dump(), **extra)
+
+
+def read_cases(files: list[Path]) -> tuple[np.ndarray, np.ndarray]:
+    """Inputs (n, 2) (displacement_mm, angle_deg) and displacements (n, n_nodes, 3) of solved cases, in file order."""
+    if not files:
+        raise ValueError("no case files")
+    inputs, disp = [], []
+    for f in files:
+        with np.load(f) as z:
+            inputs.append((float(z["displacement_mm"]), float(z["angle_deg"])))
+            disp.append(z["displacement"])
+    return np.asarray(inputs), np.stack(disp)
+
+
+def snapshot_record(folder: Path, name: str) -> SnapshotRecord:
+    """The manifest row of a snapshot file on disk."""
+    with np.load(folder / name) as z:
+        return SnapshotRecord(
+            file=name, sha256=sha256(folder / name), displacement_mm=float(z["displacement_mm"]),
+            angle_deg=float(z["angle_deg"]), newton_iterations=int(z["newton_iterations"]),
+            residual=float(z["residual"]), min_det_f=float(z["min_det_f"]), seconds=float(z["seconds"]),
+            mirrored_from=str(z["mirrored_from"]) if "mirrored_from" in z.files else None)
+
+
+def write_manifest(folder: str | Path, manifest: SweepManifest) -> Path:
+    return atomic_write_text(Path(folder) / MANIFEST, manifest.model_dump_json(indent=2) + "\n")
+
+
+def read_manifest(folder: str | Path) -> SweepManifest:
+    """The folder's manifest; ValueError saying why when it is missing, of another format or invalid."""
+    path = Path(folder) / MANIFEST
+    if not path.is_file():
+        raise ValueError(f"{folder}: no {MANIFEST}; is it a `fem_offline sweep` output folder?")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if data.get("format_version") != SWEEP_FORMAT:
+        raise ValueError(f"{folder}: sweep format {data.get('format_version', 'unversioned')!r}, this code reads "
+                         f"{SWEEP_FORMAT}; run the sweep again into a new folder")
+    try:
+        return SweepManifest.model_validate(data)
+    except ValidationError as exc:
+        raise ValueError(f"{path}: {_first_error(exc)}") from None
+
+
+def _first_error(exc: ValidationError) -> str:
+    e = exc.errors()[0]
+    return f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
+
+
+@dataclass(frozen=True)
+class Sweep:
+    manifest: SweepManifest
+    mesh: TetMesh
+    inputs: np.ndarray  # (n, 2): displacement_mm, angle_deg
+    displacement: np.ndarray  # (n, n_nodes, 3) mm, float64
+
+
+def read_sweep(folder: str | Path) -> Sweep:
+    """A finished sweep, every file checked against its sha256; refuse an unfinished or altered one."""
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    present = sum((folder / r.file).is_file() for r in manifest.snapshots)
+    if present != manifest.n_expected:
+        raise ValueError(f"{folder} holds {present} of {manifest.n_expected} snapshots; "
+                         "finish the sweep first (rerun the same `fem_offline sweep` command)")
+    for name, digest in [(manifest.mesh, manifest.mesh_sha256), *((r.file, r.sha256) for r in manifest.snapshots)]:
+        if not (folder / name).is_file():
+            raise ValueError(f"{folder}: {name} is listed in the manifest but missing")
+        if sha256(folder / name) != digest:
+            raise ValueError(f"{folder}: {name} does not match its sha256 in {MANIFEST} (corrupt or replaced)")
+    mesh = read_mesh(folder / manifest.mesh)
+    inputs, disp = read_cases([folder / r.file for r in manifest.snapshots])
+    if disp.shape[1] != len(mesh.nodes):
+        raise ValueError(f"{folder}: snapshots have {disp.shape[1]} nodes, the mesh {len(mesh.nodes)}")
+    return Sweep(manifest, mesh, inputs, disp)
