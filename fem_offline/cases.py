@@ -13,7 +13,6 @@ from contracts import sweep as folder
 from contracts.envelope import Envelope
 from contracts.mesh import TetMesh
 
-from .problem import build_problem
 from .scene import Scene
 from .solve import ConvergenceError, solve_case
 

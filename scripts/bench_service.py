@@ -2,7 +2,7 @@
 
     python scripts/bench_service.py --model models/default [--duration 5]
 
-Starts `python -m service` on a free loopback port, loads it with scripts/loadtest.py for each
+Starts `python -m service` on a free loopback port, loads it with service/loadtest.py for each
 scenario, and times the in-process Predictor (onnxruntime) for the same full-mesh and markers
 decodes. Prints a markdown table with medians, p99 and the service/onnxruntime ratio.
 """
@@ -21,12 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
-import loadtest  # noqa: E402
-
-from service.model import Predictor, read_model_folder  # noqa: E402
+from service import loadtest
+from service.model import Predictor, read_model_folder
+from service.settings import DEFAULT_MODEL
 
 
 def _free_port() -> int:
@@ -52,7 +49,7 @@ def _direct_ms(predictor: Predictor, nodes, n: int = 2000) -> np.ndarray:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", type=Path, default=ROOT / "models" / "default")
+    ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--duration", type=float, default=5.0, help="seconds per scenario")
     ap.add_argument("--json-out", type=Path, help="also write the figures as JSON")
     args = ap.parse_args()
@@ -60,7 +57,7 @@ def main() -> int:
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     server = subprocess.Popen([sys.executable, "-m", "service", "--model", str(args.model), "--port", str(port),
-                               "--log-level", "warning", "--max-body-bytes", "1048576"], cwd=ROOT,
+                               "--log-level", "warning", "--max-body-bytes", "1048576"],
                               env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
         for _ in range(120):

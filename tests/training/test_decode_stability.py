@@ -1,7 +1,7 @@
 """float32 decoding at a paper-scale node count against float64 (stability suite)."""
 
 import numpy as np
-import onnxruntime as ort
+from contracts.model import onnx_session
 
 from training.export import build_graph, reference_decode
 from training.pca import Pca
@@ -23,9 +23,7 @@ def test_float32_decode_at_paper_scale_matches_float64():
     w = rng.normal(size=(2, RANK))
     w *= 15.0 / np.abs(reference_decode([(w, np.zeros(RANK))], Pca(np.zeros(3 * N_NODES), basis, np.ones(1)), guide)).max()
     layers = [(w, np.zeros(RANK))]
-    so = ort.SessionOptions()
-    so.log_severity_level = 3
-    sess = ort.InferenceSession(build_graph(layers, pca).SerializeToString(), so, providers=["CPUExecutionProvider"])
+    sess = onnx_session(build_graph(layers, pca).SerializeToString())
     ref = reference_decode(layers, pca, guide)
     got = sess.run(None, {"guide": guide})[0]
     err = np.abs(got - ref).max()

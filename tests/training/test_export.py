@@ -2,7 +2,7 @@
 
 
 import numpy as np
-import onnxruntime as ort
+from contracts.model import onnx_session
 import pytest
 import torch
 
@@ -24,9 +24,7 @@ def pieces():
 
 
 def _session(model):
-    so = ort.SessionOptions()
-    so.log_severity_level = 3
-    return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
+    return onnx_session(model.SerializeToString())
 
 
 def test_onnx_torch_numpy_parity(pieces):

@@ -1,7 +1,7 @@
 """Load-test a running service on loopback: N clients for T seconds (or R requests), JSON or binary.
 
-    python scripts/loadtest.py --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
-    python scripts/loadtest.py --region markers --requests 2000
+    python -m service.loadtest --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
+    python -m service.loadtest --region markers --requests 2000
 
 Each client holds one keep-alive connection and sends random (displacement, angle) inside the
 model's envelope (read from GET /model). Prints p50/p95/p99/max latency, throughput and errors.
