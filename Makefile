@@ -9,7 +9,7 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 IMAGE ?= deform-service
 
-.PHONY: install serve test bench bench-service container-test clean system-deps
+.PHONY: install serve test test-fast bench bench-service tradeoff convergence default-model container-test clean system-deps
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -43,11 +43,29 @@ serve: $(SERVE_STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# The local loop: everything but the minutes-long nonlinear stability runs.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow"
+
+# Studies and benchmarks (README, "Commands"). Each prints what it measured; run one at a time.
+RUNS ?= runs/default
 bench: $(STAMP)
-	$(PY) scripts/bench_fem.py
+	MKL_NUM_THREADS=1 $(PY) scripts/bench_fem.py
 
 bench-service: $(STAMP)
 	$(PY) scripts/bench_service.py --model $(MODEL)
+
+tradeoff: $(STAMP)
+	MKL_NUM_THREADS=2 $(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid
+
+convergence: $(STAMP)
+	MKL_NUM_THREADS=2 $(PY) scripts/mesh_convergence.py
+
+# The committed models/default from scratch: sweep, off-grid cases, fit. Each step resumes.
+default-model: $(STAMP)
+	$(PY) -m fem_offline sweep --scene fem_offline/scenes/default.toml --out $(RUNS)
+	$(PY) -m fem_offline cases --scene fem_offline/scenes/default.toml --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 24 --seed 0
+	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 32 --offgrid $(RUNS)/offgrid
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
 container-test:
