@@ -16,27 +16,21 @@ Held-out error = worst over the paper's five samples and the off-grid cases, flo
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("MKL_NUM_THREADS", "2")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from fem_offline.io import mesh_for_scene  # noqa: E402
-from fem_offline.linsolve import AMG_MIN_DOFS  # noqa: E402
-from fem_offline.problem import build_problem  # noqa: E402
-from fem_offline.scene import load_scene  # noqa: E402
-from fem_offline.solve import linear_modes  # noqa: E402
-from service.model import PointLocator, p2_weights  # noqa: E402
-from training.export import build_graph, folded_layers  # noqa: E402
-from training.fit import PAPER_TEST_CASES, training_set  # noqa: E402
-from training.network import train  # noqa: E402
-from training.pca import fit_pca  # noqa: E402
-from training.snapshots import read_cases, read_sweep  # noqa: E402
+from contracts.model import onnx_session
+from fem_offline.io import mesh_for_scene
+from fem_offline.linsolve import AMG_MIN_DOFS
+from fem_offline.problem import build_problem
+from fem_offline.scene import load_scene
+from fem_offline.solve import linear_modes
+from service.model import PointLocator, p2_weights
+from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, training_set
+from training.snapshots import read_offgrid, read_sweep, snapshots_of
 
 # the last is paper scale (225,938 tets, fem_offline/scenes/paper_scale.toml): solved by AMG-CG, the reference
 MESH_SIZES = [(16.0, 6.0, 2.5), (12.0, 4.0, 2.0), (8.0, 2.7, 1.35), (6.0, 2.0, 1.0), (4.8, 1.6, 0.8), (3.5, 1.15, 0.58)]
@@ -116,21 +110,17 @@ def physics_rows(sweep, scene_path: Path) -> list[dict]:
     problem = build_problem(lin_scene, sweep.mesh)
     t_lin = median_time(lambda: linear_modes(problem), 3)
     u0, ua, ub = linear_modes(problem)
-    d, a = sweep.snapshots.inputs[:, 0], np.radians(sweep.snapshots.inputs[:, 1])
+    d, a = sweep.inputs[:, 0], np.radians(sweep.inputs[:, 1])
     lin = d[:, None, None] * (np.cos(a)[:, None, None] * ua.reshape(1, -1, 3) + np.sin(a)[:, None, None] * ub.reshape(1, -1, 3))
-    err = nodal(lin, sweep.snapshots.displacement)
-    nl_minutes = sweep.manifest.get("wall_seconds_total", sweep.manifest.get("wall_seconds_this_run", float("nan"))) / 60
+    err = nodal(lin, sweep.displacement)
+    # the wall time of the sweep's last run: a sweep run in one go states its whole time
+    nl_seconds = sweep.manifest.wall_seconds_this_run
     return [row("FE physics", "linear, whole 840 sweep", err, t_lin, "vs the nonlinear snapshots", kind="sweep"),
-            row("FE physics", "nonlinear, whole 840 sweep", (0.0, 0.0), nl_minutes * 60, "sweep wall time from its manifest", kind="sweep")]
+            row("FE physics", "nonlinear, whole 840 sweep", (0.0, 0.0), nl_seconds, "sweep wall time from its manifest (last run)", kind="sweep")]
 
 
 def decode_latency(model_bytes: bytes, nodes=None, repeat: int = 300):
-    import onnxruntime as ort
-
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = 1
-    so.log_severity_level = 3
-    sess = ort.InferenceSession(model_bytes, so, providers=["CPUExecutionProvider"])
+    sess = onnx_session(model_bytes)
     feed = {"guide": np.array([[5.0, 2.0]], dtype=np.float32)}
     if nodes is not None:
         feed["nodes"] = np.asarray(nodes, dtype=np.int64)
@@ -145,43 +135,38 @@ def held_out(sess, inputs, reference) -> tuple[float, float]:
 
 
 def surrogate_rows(sweep, offgrid_inputs, offgrid_disp) -> list[dict]:
-    s = sweep.snapshots
+    s = snapshots_of(sweep)
     test, inputs, x = training_set(s, PAPER_TEST_CASES)
     ho_inputs = np.concatenate([s.inputs[test], offgrid_inputs])
     ho_ref = np.concatenate([s.displacement[test], offgrid_disp])
-    rows, pcas = [], {}
+    rows = []
     for rank in (1, 2, 4, 8, 16, 24, 32, 48, 64):
-        pca = fit_pca(x, rank)
-        pcas[rank] = pca
-        recon = pca.decode(pca.encode(ho_ref.reshape(len(ho_ref), -1))).reshape(ho_ref.shape)
         t0 = time.perf_counter()
-        net, scaling, info = train(inputs, pca.encode(x), width=60, depth=1)
+        fitted = fit_surrogate(inputs, x, FitOptions(rank=rank, width=60, depth=1))
         t_train = time.perf_counter() - t0
-        model = build_graph(folded_layers(net, scaling), pca).SerializeToString()
-        lat, sess = decode_latency(model)
+        pca = fitted.pca
+        recon = pca.decode(pca.encode(ho_ref.reshape(len(ho_ref), -1))).reshape(ho_ref.shape)
+        lat, sess = decode_latency(fitted.onnx_bytes())
         rows.append(row("PCA rank", f"rank {rank}", held_out(sess, ho_inputs, ho_ref), lat,
-                        f"PCA alone {nodal(recon, ho_ref)[0]:.4f} mm; train {t_train:.1f} s", kind="query",
+                        f"PCA alone {nodal(recon, ho_ref)[0]:.4f} mm; PCA + train {t_train:.1f} s", kind="query",
                         reconstruction_max_mm=nodal(recon, ho_ref)[0], train_seconds=t_train))
         print(f"  rank {rank}: held-out {rows[-1]['max_mm']:.4f} mm, decode {lat * 1e3:.3f} ms", flush=True)
-    pca = pcas[32]
-    coef = pca.encode(x)
     for width, depth in ((15, 1), (30, 1), (60, 1), (120, 1), (30, 2), (60, 2)):
-        t0 = time.perf_counter()
-        net, scaling, info = train(inputs, coef, width=width, depth=depth)
-        t_train = time.perf_counter() - t0
-        layers = folded_layers(net, scaling)
-        lat, sess = decode_latency(build_graph(layers, pca).SerializeToString())
+        fitted = fit_surrogate(inputs, x, FitOptions(rank=32, width=width, depth=depth))
+        t_train = fitted.info["seconds"]
+        lat, sess = decode_latency(fitted.onnx_bytes())
         rows.append(row("network (rank 32)", f"{depth}x{width} tanh", held_out(sess, ho_inputs, ho_ref), lat,
-                        f"train {t_train:.1f} s, {info['iterations']} L-BFGS iterations", kind="query", train_seconds=t_train))
+                        f"train {t_train:.1f} s, {fitted.info['iterations']} L-BFGS iterations", kind="query",
+                        train_seconds=t_train))
         print(f"  {depth}x{width}: held-out {rows[-1]['max_mm']:.4f} mm, train {t_train:.1f} s", flush=True)
         if (width, depth) == (60, 1):
-            default_layers = layers
+            default = fitted
     for dtype, name in ((np.float32, "float32"), (np.float16, "float16")):
-        model = build_graph(default_layers, pca, dtype=dtype).SerializeToString()
+        model = default.onnx_bytes(dtype)
         lat, sess = decode_latency(model)
         rows.append(row("basis precision", f"{name} basis, full mesh", held_out(sess, ho_inputs, ho_ref), lat,
                         f"model.onnx {len(model) / 1e6:.1f} MB", kind="query"))
-    model = build_graph(default_layers, pca).SerializeToString()
+    model = default.onnx_bytes()
     full = held_out(decode_latency(model)[1], ho_inputs, ho_ref)
     for region in ("prostate_surface", "markers"):
         ids = sweep.mesh.node_sets[region]
@@ -273,8 +258,8 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     sweep = read_sweep(args.sweep)
-    files = sorted(args.offgrid.glob("*.npz"))
-    og_inputs, og_disp = read_cases(files)
+    files = sorted(p for p in args.offgrid.glob("offgrid_*.npz"))
+    og_inputs, og_disp = read_offgrid(args.offgrid, len(sweep.mesh.nodes))
     print("surrogate rows ...", flush=True)
     rows = surrogate_rows(sweep, og_inputs, og_disp)
     print("physics rows ...", flush=True)
