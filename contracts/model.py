@@ -122,7 +122,7 @@ class NetworkInfo(_Frozen):
     seconds: float
     seed: int
     n_train: int
-    n_zero_load: int
+    output: str  # how the graph forms the displacement from the network's output
 
 
 class Normalisation(_Frozen):

@@ -145,7 +145,8 @@ def surrogate_rows(sweep, offgrid_inputs, offgrid_disp) -> list[dict]:
         fitted = fit_surrogate(inputs, x, FitOptions(rank=rank, width=60, depth=1))
         t_train = time.perf_counter() - t0
         pca = fitted.pca
-        recon = pca.decode(pca.encode(ho_ref.reshape(len(ho_ref), -1))).reshape(ho_ref.shape)
+        d_ho = ho_inputs[:, :1, None]  # the model fits f = u / d (training/export.py)
+        recon = d_ho * pca.decode(pca.encode((ho_ref / d_ho).reshape(len(ho_ref), -1))).reshape(ho_ref.shape)
         lat, sess = decode_latency(fitted.onnx_bytes())
         rows.append(row("PCA rank", f"rank {rank}", held_out(sess, ho_inputs, ho_ref), lat,
                         f"PCA alone {nodal(recon, ho_ref)[0]:.4f} mm; PCA + train {t_train:.1f} s", kind="query",

@@ -39,14 +39,13 @@ def _held_out_mask(inputs: np.ndarray, cases) -> np.ndarray:
 
 
 def training_set(data: Snapshots, test_cases) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(held-out mask, inputs (n, 2), rows (n, 3 n_nodes)) for fitting: the snapshots not held out,
-    plus the unloaded state (u = 0 at every sweep angle), known exactly, so the envelope starts at 0 mm."""
+    """(held-out mask, inputs (n, 2), rows (n, 3 n_nodes)) for fitting: the snapshots not held out, as
+    f = u / d. The exported graph multiplies by d (export.py), so the unloaded state d = 0 needs no row:
+    it is exactly zero, and the envelope starts at 0 mm."""
     test = _held_out_mask(data.inputs, test_cases)
-    kept = data.select(~test)
-    angles = np.unique(data.inputs[:, 1])
-    inputs = np.concatenate([kept.inputs, np.stack([np.zeros_like(angles), angles], axis=1)])
-    rows = np.concatenate([kept.displacement.reshape(len(kept), -1), np.zeros((len(angles), 3 * len(data.reference_positions)))])
-    return test, inputs, rows
+    kept = data.select(~test & (data.inputs[:, 0] > 0))
+    rows = kept.displacement.reshape(len(kept), -1) / kept.inputs[:, :1]
+    return test, kept.inputs, rows
 
 
 @dataclass(frozen=True)
@@ -98,7 +97,7 @@ def _versions() -> dict[str, str]:
 def _metrics(session, surrogate: Surrogate, data: Snapshots, test, inputs, offgrid) -> folder.Metrics:
     table3 = evaluate(session, data.inputs[test], data.displacement[test])
     offgrid_rows = evaluate(session, *offgrid) if offgrid is not None else []
-    probe = np.concatenate([data.inputs[test], inputs[[0, -1]]])
+    probe = np.concatenate([data.inputs[test], inputs[[0, -1]], [[0.0, data.inputs[0, 1]]]])
     parity = float(np.abs(
         np.concatenate([session.run(None, {"guide": p[None].astype(np.float32)})[0] for p in probe])
         - reference_decode(surrogate.layers, surrogate.pca, probe)).max())
@@ -137,7 +136,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
                            energy_by_rank=[float(v) for v in np.cumsum(s2)[:64] / s2.sum()]),
         network=folder.NetworkInfo(inputs=["displacement_mm", "angle_deg"], width=options.width, depth=options.depth,
                                    activation="tanh", optimizer="L-BFGS, variable projection", **surrogate.info,
-                                   n_train=int((~test).sum()), n_zero_load=len(inputs) - int((~test).sum())),
+                                   n_train=len(inputs), output="displacement = d x decoded field (exactly 0 at rest)"),
         normalisation=folder.Normalisation(input_center=surrogate.input_center.tolist(),
                                            input_scale=surrogate.input_scale.tolist()),
         envelope=m.envelope,

@@ -15,11 +15,12 @@ from training.pca import fit_pca
 def pieces():
     rng = np.random.default_rng(0)
     n_nodes = 500
-    x = np.stack([rng.uniform(0, 10, 120), rng.uniform(-10, 10, 120)], axis=1)
+    x = np.stack([rng.uniform(0.25, 10, 120), rng.uniform(-10, 10, 120)], axis=1)
     fields = 0.3 * rng.normal(size=(3, 3 * n_nodes))  # peak |u| about 10 mm, like the phantom
     u = np.outer(x[:, 0], fields[0]) + np.outer(x[:, 0] * x[:, 1] / 10, fields[1]) + np.outer(x[:, 0] ** 2 / 10, fields[2])
-    pca = fit_pca(u, 6)
-    net, scaling, _ = train(x, pca.encode(u), width=20, max_iterations=100)
+    f = u / x[:, :1]  # the graph decodes f and multiplies by d
+    pca = fit_pca(f, 6)
+    net, scaling, _ = train(x, pca.encode(f), width=20, max_iterations=100)
     return net, scaling, pca
 
 
@@ -39,11 +40,22 @@ def test_onnx_torch_numpy_parity(pieces):
         coef = net32(torch.from_numpy(((guide - s.input_center) / s.input_scale).astype(np.float32)))
         coef = coef * torch.from_numpy(s.coef_scale.astype(np.float32)) + torch.from_numpy(s.coef_mean.astype(np.float32))
         torch_out = (torch.from_numpy(pca.mean.astype(np.float32)) + coef @ torch.from_numpy(pca.basis.astype(np.float32)))
+        torch_out = torch_out * torch.from_numpy(guide[:, :1])  # u = d f
         net.double()
     torch_out = torch_out.numpy().reshape(len(guide), -1, 3)
     scale = np.abs(reference).max()
     assert np.abs(onnx_out - reference).max() < 1e-4 and np.abs(torch_out - reference).max() < 1e-4, scale
     assert np.abs(onnx_out - torch_out).max() < 1e-4
+
+
+def test_guide_at_rest_gives_exactly_zero_in_both_branches(pieces):
+    """u = d f by construction: d = 0 decodes to 0.0 exactly (not merely small) at every angle."""
+    net, s, pca = pieces
+    sess = _session(build_graph(folded_layers(net, s), pca))
+    guide = np.array([[0.0, -10.0], [0.0, 0.0], [0.0, 7.5]], dtype=np.float32)
+    assert np.all(sess.run(None, {"guide": guide})[0] == 0.0)
+    assert np.all(sess.run(None, {"guide": guide, "nodes": np.array([3, 1, 499])})[0] == 0.0)
+    assert np.abs(sess.run(None, {"guide": np.array([[0.01, 0.0]], dtype=np.float32)})[0]).max() > 0
 
 
 def test_subset_branch_decodes_exactly_the_requested_nodes(pieces):
