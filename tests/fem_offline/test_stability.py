@@ -18,6 +18,7 @@ def _equilibrium(problem, u):
     return np.linalg.norm(ev.r[problem.free]) / reactions, ev.min_j
 
 
+@pytest.mark.slow
 def test_sweep_corners_at_10mm_are_in_equilibrium(tiny_problem, corner_path):
     """beta = -10 and +10 deg at 10 mm (the +10 path is shared with test_solver)."""
     (_, u_minus, _), = S.solve_path(tiny_problem, [10.0], -10.0)
@@ -26,6 +27,7 @@ def test_sweep_corners_at_10mm_are_in_equilibrium(tiny_problem, corner_path):
         assert rel <= tiny_problem.scene.solver.rtol and min_j > 0.3
 
 
+@pytest.mark.slow
 def test_push_past_the_sweep_is_right_until_it_fails_loudly(tiny_scene, tiny_mesh):
     """beta = 10 deg, pushed in 2.5 mm strides until the solver gives up: every state returned is in
     equilibrium with det F > 0, and the failure is a ConvergenceError naming the displacement,
@@ -88,6 +90,7 @@ def test_stiff_bone_barely_strains_and_the_prostate_converges(contrast_solutions
     assert np.linalg.norm(u[prostate] - u235[prostate], axis=1).max() < 0.02 * peak
 
 
+@pytest.mark.slow
 def test_stiffness_contrast_nonlinear_path_converges(tiny_scene, tiny_mesh):
     problem = build_problem(*_with_elastic_pubic_bone(tiny_scene, tiny_mesh, 1.7e5))
     (d, u, _), = S.solve_path(problem, [5.0], 10.0)
@@ -101,7 +104,7 @@ def test_poisson_ratio_range_lame_sphere(nu):
     assert lame_sphere_error(nu) < 0.01
 
 
-@pytest.mark.parametrize("nu", [0.3, 0.499])
+@pytest.mark.parametrize("nu", [0.3, pytest.param(0.499, marks=pytest.mark.slow)])
 def test_poisson_ratio_range_phantom(tiny_scene, tiny_mesh, nu):
     tissues = {k: v.model_copy(update={"poisson": nu}) for k, v in tiny_scene.tissues.items()}
     problem = build_problem(tiny_scene.model_copy(update={"tissues": tissues}), tiny_mesh)
