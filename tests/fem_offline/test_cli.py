@@ -1,12 +1,10 @@
 """CLI and sweep contracts: outputs, one-line errors, resumability, atomic files, pool vs Dask."""
 
 import json
-import os
 import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +42,28 @@ displacement_max_mm = 2.0
 angle_min_deg = -10.0
 angle_max_deg = 10.0
 angle_step_deg = 20.0
+"""
+
+# Solve the scene's first path as a sweep worker does, and SIGKILL the process as soon as its first
+# snapshot is on disk: a kill -9 at a known point, not at whatever moment a poll notices a file.
+KILL_AFTER_FIRST_SNAPSHOT = """
+import os, signal, sys
+from pathlib import Path
+from fem_offline import sweep
+from fem_offline.scene import load_scene
+
+write = sweep.write_snapshot
+
+
+def write_then_die(*args, **kw):
+    write(*args, **kw)
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+sweep.write_snapshot = write_then_die
+scene, out = load_scene(sys.argv[1]), Path(sys.argv[2])
+sweep.prepare(scene, out)
+sweep.run_path(scene.model_dump_json(), str(out), sweep.grid(scene)[0])
 """
 
 
@@ -109,19 +129,13 @@ def test_sweep_refuses_a_folder_of_another_scene(tmp_path):
 
 
 def test_killed_sweep_resumes_to_the_same_answer(tmp_path, tiny_problem):
-    """Kill -9 after the first snapshot: every file on disk is whole; the rerun finishes the path."""
+    """Kill -9 right after the first snapshot: only whole files on disk; the rerun finishes the path."""
     scene = _scene_file(tmp_path, "one", MINI.replace("angle_min_deg = -10.0", "angle_min_deg = 10.0").replace("displacement_max_mm = 2.0", "displacement_max_mm = 3.0"))
     out = tmp_path / "sweep"
-    proc = subprocess.Popen([sys.executable, "-m", "fem_offline", "sweep", "--scene", scene, "--out", out, "--workers", "1"], cwd=ROOT, start_new_session=True, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
-    while time.time() < deadline and not list((out / "snapshots").glob("a*.npz")):
-        time.sleep(0.2)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    done = list((out / "snapshots").glob("a*.npz"))
-    assert 1 <= len(done) < 3
-    for f in done:
-        np.load(f)["displacement"]  # whole, readable files only
+    killed = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_SNAPSHOT, str(scene), str(out)], cwd=ROOT, capture_output=True, text=True)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert [p.name for p in (out / "snapshots").iterdir()] == ["a000_d000.npz"]
+    np.load(out / "snapshots" / "a000_d000.npz")["displacement"]  # whole, readable
     run = _cli("sweep", "--scene", scene, "--out", out, "--workers", "1")
     assert run.returncode == 0, run.stderr
     with np.load(out / "snapshots" / "a000_d002.npz") as z:
