@@ -46,8 +46,7 @@ def mesh_for_scene(scene: Scene) -> meshmod.TetMesh:
     else:
         from .phantom import build_phantom
 
-        points, tets10, tissue, names = build_phantom(scene)
-        base = meshmod.from_vertices(points, tets10[:, :4], tissue, names)
+        base = meshmod.from_vertices(*build_phantom(scene))
     return build_node_sets(base, scene)
 
 

@@ -1,8 +1,8 @@
 """Quadratic tetrahedral mesh with tissue tags and named node sets; meshio I/O.
 
 Node numbering is scikit-fem's P2 DOF numbering (vertices first, then edge midpoints), so the
-FE solution vector indexes the mesh nodes directly. Tets are stored in VTK/meshio tetra10 order:
-vertices 0-3, then edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3). gmsh swaps the last two.
+FE solution vector indexes the mesh nodes directly. Tets are stored in VTK/meshio tetra10 order
+(contracts.tet10): vertices 0-3, then the edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3).
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.tet10 import EDGES
+
 from .scene import Scene
 
-GMSH_TO_VTK_TET10 = np.array([0, 1, 2, 3, 4, 5, 6, 7, 9, 8])
-EDGES_VTK_TET10 = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
 SET_PREFIX = "set:"
 
 
@@ -59,7 +59,7 @@ def from_vertices(points: np.ndarray, tets4: np.ndarray, tissue: np.ndarray, nam
     nodes = basis.doflocs.T.copy()
     tets10 = basis.element_dofs.T.copy()
     # Put the edge nodes in VTK order by matching midpoints (independent of skfem's edge order).
-    mid = 0.5 * (nodes[tets10[:, EDGES_VTK_TET10[:, 0]]] + nodes[tets10[:, EDGES_VTK_TET10[:, 1]]])
+    mid = 0.5 * (nodes[tets10[:, EDGES[:, 0]]] + nodes[tets10[:, EDGES[:, 1]]])
     d = np.linalg.norm(mid[:, :, None, :] - nodes[tets10[:, None, 4:]], axis=-1)  # (m, 6, 6)
     order = d.argmin(axis=2)
     tets10[:, 4:] = np.take_along_axis(tets10[:, 4:], order, axis=1)

@@ -4,9 +4,9 @@ import meshio
 import numpy as np
 import pytest
 
+from contracts.tet10 import EDGES
 from fem_offline import mesh as meshmod
-from fem_offline.mesh import EDGES_VTK_TET10, GMSH_TO_VTK_TET10
-from fem_offline.phantom import PRIORITY, build_phantom
+from fem_offline.phantom import PRIORITY
 
 
 def _volumes(nodes, tets):
@@ -21,19 +21,10 @@ def test_every_tissue_is_meshed_and_tets_are_positive(tiny_mesh):
 
 
 def test_edge_nodes_sit_at_edge_midpoints_in_vtk_order(tiny_mesh):
-    """Straight-sided P2: node 4 + k is the midpoint of VTK edge k."""
+    """Straight-sided P2 (from_vertices): node 4 + k is the midpoint of VTK edge k."""
     n, t = tiny_mesh.nodes, tiny_mesh.tets
-    mid = 0.5 * (n[t[:, EDGES_VTK_TET10[:, 0]]] + n[t[:, EDGES_VTK_TET10[:, 1]]])
+    mid = 0.5 * (n[t[:, EDGES[:, 0]]] + n[t[:, EDGES[:, 1]]])
     np.testing.assert_allclose(n[t[:, 4:]], mid, atol=1e-9)
-
-
-def test_gmsh_tet10_order_swaps_last_two_edges(tiny_scene):
-    """gmsh's own 10-node tets match VTK order after swapping nodes 8 and 9."""
-    points, tets10, _, _ = build_phantom(tiny_scene)
-    vtk = tets10[:, GMSH_TO_VTK_TET10]
-    mid = 0.5 * (points[vtk[:, EDGES_VTK_TET10[:, 0]]] + points[vtk[:, EDGES_VTK_TET10[:, 1]]])
-    np.testing.assert_allclose(points[vtk[:, 4:]], mid, atol=1e-9)
-    assert not np.allclose(points[tets10[:, 4:]], mid, atol=1e-6)
 
 
 def test_tissue_volumes_are_anatomical(tiny_mesh):
