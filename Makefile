@@ -44,7 +44,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 bench: $(STAMP)
-	$(PY) scripts/bench_fem.py
+	MKL_NUM_THREADS=1 $(PY) scripts/bench_fem.py
 
 bench-service: $(STAMP)
 	$(PY) scripts/bench_service.py --model $(MODEL)

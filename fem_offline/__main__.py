@@ -52,7 +52,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _solve(args) -> None:
-    from .io import atomic_savez, load_or_build_mesh
+    from .io import atomic_savez
+    from .meshing import load_or_build_mesh
     from .problem import build_problem
     from .solve import solve_case
 
@@ -94,8 +95,8 @@ def _sweep(args) -> int:
 
 
 def _mesh(args) -> None:
-    from .io import mesh_for_scene
     from .mesh import save
+    from .meshing import mesh_for_scene
 
     if args.out.suffix not in (".vtu", ".msh", ".xdmf"):
         raise ValueError(f"--out: use .vtu, .msh or .xdmf, got {args.out.suffix or 'no suffix'}")
@@ -107,7 +108,7 @@ def _mesh(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    from .solve import ConvergenceError
+    from .newton import ConvergenceError
 
     try:
         return {"solve": _solve, "sweep": _sweep, "mesh": _mesh}[args.command](args) or 0

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from contracts.tet10 import boundary_faces, face_multiplicity, faces
+from contracts.tet10 import face_multiplicity, faces
 
+from . import guide
+from .boundary import bone_nodes, table_nodes
 from .mesh import TetMesh
 from .scene import Scene
 
@@ -31,30 +33,11 @@ def marker_nodes(mesh: TetMesh, surface: np.ndarray, n: int = 8) -> np.ndarray:
     return np.asarray(picks)
 
 
-def guide_weights(mesh: TetMesh, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """Wall nodes within the patch radius of the tip and their rounded-tip weights cos^2(pi r / 2R)."""
-    ext, _ = boundary_faces(mesh.tets)
-    wall = np.unique(ext)
-    r = np.linalg.norm(mesh.nodes[wall] - np.asarray(scene.guide.tip_mm), axis=1)
-    radius = scene.guide.patch_radius_mm
-    inside = r < radius
-    if not inside.any():
-        raise ValueError(f"guide.tip_mm: no boundary node within patch_radius_mm={radius} of the tip")
-    return wall[inside], np.cos(0.5 * np.pi * r[inside] / radius) ** 2
-
-
 def build_node_sets(mesh: TetMesh, scene: Scene) -> TetMesh:
     """Attach the named node sets the solver and the surrogate need."""
     names = mesh.tissue_names
-    bone_ids = [i for i, n in enumerate(names) if scene.tissues[n].bone]
-    bones = np.unique(mesh.tets[np.isin(mesh.tissue, bone_ids)])
-    ext, _ = boundary_faces(mesh.tets)
-    ext_nodes = np.unique(ext)
-    z = mesh.nodes[:, 2]
-    tol = 1e-6 * (z.max() - z.min())
-    table = ext_nodes[z[ext_nodes] <= z.min() + tol]
-    patch, _ = guide_weights(mesh, scene)
-    sets = {"bones": bones, "table": table, "guide_patch": patch}
+    patch, _ = guide.patch(mesh, scene.guide)
+    sets = {"bones": bone_nodes(mesh, scene), "table": table_nodes(mesh), "guide_patch": patch}
     if "prostate" in names:
         surface = interface_nodes(mesh, names.index("prostate"))
         sets["prostate_surface"] = surface

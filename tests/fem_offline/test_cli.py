@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fem_offline import solve as S
 from fem_offline.mesh import load as load_mesh
 from fem_offline.problem import build_problem
 from fem_offline.scene import load_scene
+from fem_offline.solve import solve_case
 from fem_offline.sweep import run_sweep
 
 from .conftest import SCENES
@@ -51,6 +51,7 @@ import os, signal, sys
 from pathlib import Path
 from fem_offline import sweep
 from fem_offline.scene import load_scene
+from fem_offline.solve import solve_case
 
 write = sweep.write_snapshot
 
@@ -75,7 +76,7 @@ def test_solve_writes_positions_displacement_and_stats(tmp_path, tiny_problem):
         np.testing.assert_allclose(z["reference_positions"], tiny_problem.mesh.nodes)
         assert z["displacement"].shape == tiny_problem.mesh.nodes.shape
         assert z["newton_iterations"] > 0 and z["residual"] <= 1e-6 and z["min_det_f"] > 0
-        expected, _ = S.solve_case(tiny_problem, 1.0, 3.0)
+        expected, _ = solve_case(tiny_problem, 1.0, 3.0)
         np.testing.assert_allclose(z["displacement"], expected, atol=1e-9)
 
 
@@ -110,7 +111,7 @@ def test_linear_sweep_superposes_and_resumes(tmp_path):
     snap = out / "snapshots" / "a002_d001.npz"  # +10 deg, 5 mm
     with np.load(snap) as z:
         # A direct solve on the sweep's own mesh (not a fresh gmsh run, which CI once saw differ).
-        expected, _ = S.solve_case(build_problem(scene, load_mesh(out / "mesh.vtu")), 5.0, 10.0)
+        expected, _ = solve_case(build_problem(scene, load_mesh(out / "mesh.vtu")), 5.0, 10.0)
         np.testing.assert_allclose(z["displacement"], expected, atol=1e-10)
     stamps = {p.name: p.stat().st_mtime_ns for p in (out / "snapshots").iterdir()}
     snap.unlink()
@@ -139,7 +140,7 @@ def test_killed_sweep_resumes_to_the_same_answer(tmp_path, tiny_problem):
     run = _cli("sweep", "--scene", scene, "--out", out, "--workers", "1")
     assert run.returncode == 0, run.stderr
     with np.load(out / "snapshots" / "a000_d002.npz") as z:
-        expected, _ = S.solve_case(tiny_problem, 3.0, 10.0, step_mm=0.5)
+        expected, _ = solve_case(tiny_problem, 3.0, 10.0, step_mm=0.5)
         np.testing.assert_allclose(z["displacement"], expected, atol=1e-5)
     assert json.loads((out / "manifest.json").read_text())["n_done"] == 3
 
@@ -180,5 +181,5 @@ def test_symmetric_sweep_solves_half_and_reflects_the_rest(tmp_path, tiny_proble
     assert manifest["n_done"] == 4 and manifest["n_mirrored"] == 2 and not manifest["errors"]
     with np.load(tmp_path / "sweep" / "snapshots" / "a000_d001.npz") as z:  # -10 deg, 2 mm
         assert str(z["mirrored_from"]) == "a001_d001.npz" and float(z["angle_deg"]) == -10.0
-        direct, _ = S.solve_case(tiny_problem, 2.0, -10.0, step_mm=1.0)
+        direct, _ = solve_case(tiny_problem, 2.0, -10.0, step_mm=1.0)
         np.testing.assert_allclose(z["displacement"], direct, atol=1e-6 * np.abs(direct).max())

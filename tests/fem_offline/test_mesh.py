@@ -70,7 +70,7 @@ def test_meshio_round_trip_is_identical(tiny_mesh, tmp_path, suffix):
 
 def test_user_mesh_is_read_with_tissue_tags(tiny_mesh, tiny_scene, tmp_path):
     """A plain linear-tet .msh with physical tags becomes the same P2 mesh."""
-    from fem_offline.io import mesh_for_scene
+    from fem_offline.meshing import mesh_for_scene
     from fem_offline.scene import UserMesh
 
     path = tmp_path / "user.msh"

@@ -3,17 +3,19 @@
 import numpy as np
 import pytest
 
-from fem_offline import solve as S
+from fem_offline.continuation import solve_path
+from fem_offline.newton import ConvergenceError, residual
 from fem_offline.problem import build_problem
 from fem_offline.regions import build_node_sets
 from fem_offline.scene import Tissue
+from fem_offline.solve import solve_case
 
 from .fe_helpers import internal_force_nh, lame_params, lame_sphere_error, p2_data, solve_linear
 
 
 def _equilibrium(problem, u):
     """(||r_free|| / ||reactions||, min det F) re-evaluated from scratch at a returned state."""
-    ev = S._evaluate(problem, u.ravel())
+    ev = residual(problem, u.ravel())
     reactions = np.linalg.norm(np.delete(ev.r, problem.free))
     return np.linalg.norm(ev.r[problem.free]) / reactions, ev.min_j
 
@@ -21,7 +23,7 @@ def _equilibrium(problem, u):
 @pytest.mark.slow
 def test_sweep_corners_at_10mm_are_in_equilibrium(tiny_problem, corner_path):
     """beta = -10 and +10 deg at 10 mm (the +10 path is shared with test_solver)."""
-    (_, u_minus, _), = S.solve_path(tiny_problem, [10.0], -10.0)
+    (_, u_minus, _), = solve_path(tiny_problem, [10.0], -10.0)
     for u in (u_minus, corner_path[-1][1]):
         rel, min_j = _equilibrium(tiny_problem, u)
         assert rel <= tiny_problem.scene.solver.rtol and min_j > 0.3
@@ -37,8 +39,8 @@ def test_push_past_the_sweep_is_right_until_it_fails_loudly(tiny_scene, tiny_mes
     scene = tiny_scene.model_copy(update={"solver": solver})
     problem = build_problem(scene, tiny_mesh)
     converged = []
-    with pytest.raises(S.ConvergenceError, match=r"no equilibrium found for guide displacement [\d.]+ mm at beta 10 deg"):
-        for d, u, _ in S.solve_path(problem, np.arange(2.5, 80.1, 2.5), 10.0):
+    with pytest.raises(ConvergenceError, match=r"no equilibrium found for guide displacement [\d.]+ mm at beta 10 deg"):
+        for d, u, _ in solve_path(problem, np.arange(2.5, 80.1, 2.5), 10.0):
             rel, min_j = _equilibrium(problem, u)
             assert rel <= problem.scene.solver.rtol and min_j > 0, (d, rel, min_j)
             converged.append(d)
@@ -61,7 +63,7 @@ def contrast_solutions(tiny_scene, tiny_mesh):
     linear = tiny_scene.model_copy(update={"effects": tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})})
     for ratio in (235.0, 1.7e5):  # Table 1: E_exp bone / fat, and E_L bone / fat
         problem = build_problem(*_with_elastic_pubic_bone(linear, tiny_mesh, ratio))
-        u, _ = S.solve_case(problem, 10.0, 10.0)
+        u, _ = solve_case(problem, 10.0, 10.0)
         out[ratio] = (problem, u)
     return out
 
@@ -93,7 +95,7 @@ def test_stiff_bone_barely_strains_and_the_prostate_converges(contrast_solutions
 @pytest.mark.slow
 def test_stiffness_contrast_nonlinear_path_converges(tiny_scene, tiny_mesh):
     problem = build_problem(*_with_elastic_pubic_bone(tiny_scene, tiny_mesh, 1.7e5))
-    (d, u, _), = S.solve_path(problem, [5.0], 10.0)
+    (d, u, _), = solve_path(problem, [5.0], 10.0)
     rel, min_j = _equilibrium(problem, u)
     assert rel <= problem.scene.solver.rtol and min_j > 0.5
 
@@ -108,7 +110,7 @@ def test_poisson_ratio_range_lame_sphere(nu):
 def test_poisson_ratio_range_phantom(tiny_scene, tiny_mesh, nu):
     tissues = {k: v.model_copy(update={"poisson": nu}) for k, v in tiny_scene.tissues.items()}
     problem = build_problem(tiny_scene.model_copy(update={"tissues": tissues}), tiny_mesh)
-    (d, u, _), = S.solve_path(problem, [7.5], 10.0)
+    (d, u, _), = solve_path(problem, [7.5], 10.0)
     rel, min_j = _equilibrium(problem, u)
     assert rel <= problem.scene.solver.rtol and min_j > 0.2, (rel, min_j)
 
