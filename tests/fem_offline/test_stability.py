@@ -22,7 +22,7 @@ def _equilibrium(problem, u):
 
 @pytest.mark.slow
 def test_sweep_corners_at_10mm_are_in_equilibrium(tiny_problem, corner_path):
-    """beta = -10 and +10 deg at 10 mm (the +10 path is shared with test_solver)."""
+    """beta = -10 and +10 deg at 10 mm (the +10 path is the corner_path fixture, shared with test_continuation and test_solve)."""
     (_, u_minus, _), = solve_path(tiny_problem, [10.0], -10.0)
     for u in (u_minus, corner_path[-1][1]):
         rel, min_j = _equilibrium(tiny_problem, u)
