@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
 def _solve(args) -> None:
     from contracts import sweep as folder
 
-    from .io import load_or_build_mesh
+    from .meshing import load_or_build_mesh
     from .problem import build_problem
     from .solve import solve_case
 
@@ -99,7 +99,7 @@ def _sweep(args) -> int:
 
 def _cases(args) -> int:
     from .cases import mesh_for_cases, solve_cases
-    from .io import load_or_build_mesh
+    from .meshing import load_or_build_mesh
 
     if args.n < 1:
         raise ValueError("--n: must be at least 1")
@@ -116,8 +116,8 @@ def _cases(args) -> int:
 
 
 def _mesh(args) -> None:
-    from .io import mesh_for_scene
     from .mesh import save
+    from .meshing import mesh_for_scene
 
     if args.out.suffix not in (".npz", ".vtu", ".msh", ".xdmf"):
         raise ValueError(f"--out: use .npz, .vtu, .msh or .xdmf, got {args.out.suffix or 'no suffix'}")
@@ -129,7 +129,7 @@ def _mesh(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    from .solve import ConvergenceError
+    from .newton import ConvergenceError
 
     try:
         return {"solve": _solve, "sweep": _sweep, "cases": _cases, "mesh": _mesh}[args.command](args) or 0

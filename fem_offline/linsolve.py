@@ -7,6 +7,7 @@ import logging
 import os
 import sys
 from ctypes.util import find_library
+from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
@@ -18,17 +19,25 @@ log = logging.getLogger(__name__)
 # iparm needs iparm(1) = 1, and then the rest of MKL's defaults must be given too (1-based).
 IPARM = {1: 1, 2: 2, 8: 0, 10: 8, 11: 0, 13: 0, 21: 1}
 
-# pypardiso searches sys.prefix for libmkl_rt on every solver it creates when ctypes cannot find it
-# (about 1 s per factorisation in a venv); look once and tell it where the library is.
-if "PYPARDISO_MKL_RT" not in os.environ and find_library("mkl_rt") is None:
-    _hits = sorted(glob.glob(f"{sys.prefix}/[Ll]ib*/**/*mkl_rt*", recursive=True), key=len)
-    if _hits:
-        os.environ["PYPARDISO_MKL_RT"] = _hits[0]
-
 try:
     from pypardiso import PyPardisoSolver
 except ImportError:  # no MKL on this platform (e.g. aarch64)
     PyPardisoSolver = None
+
+
+@lru_cache(maxsize=1)
+def _point_pypardiso_at_mkl() -> None:
+    """Find libmkl_rt once, at the first factorisation, and tell pypardiso (PYPARDISO_MKL_RT).
+
+    Where ctypes cannot find the library (a venv), pypardiso walks sys.prefix for it on every
+    solver it creates: about 1 s per factorisation. The variable is its only way in; the search
+    runs here, not at import, so importing this module leaves the environment alone.
+    """
+    if "PYPARDISO_MKL_RT" in os.environ or find_library("mkl_rt") is not None:
+        return
+    hits = sorted(glob.glob(f"{sys.prefix}/[Ll]ib*/**/*mkl_rt*", recursive=True), key=len)
+    if hits:
+        os.environ["PYPARDISO_MKL_RT"] = hits[0]
 
 
 class Factor:
@@ -50,6 +59,7 @@ class Factor:
             return
         self._A = sp.triu(K, format="csr")
         self._A.sort_indices()
+        _point_pypardiso_at_mkl()
         for mtype in (2, -2):
             self._ps = PyPardisoSolver(mtype=mtype)
             for key, value in IPARM.items():

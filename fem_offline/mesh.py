@@ -1,8 +1,8 @@
 """Quadratic tetrahedral mesh with tissue tags and named node sets; meshio I/O.
 
 Node numbering is scikit-fem's P2 DOF numbering (vertices first, then edge midpoints), so the
-FE solution vector indexes the mesh nodes directly. Tets are stored in VTK/meshio tetra10 order:
-vertices 0-3, then edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3). gmsh swaps the last two.
+FE solution vector indexes the mesh nodes directly. Tets are stored in VTK/meshio tetra10 order
+(contracts.tet10): vertices 0-3, then the edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import numpy as np
 from contracts.mesh import TetMesh, read_mesh, write_mesh
 from contracts.tet10 import EDGES
 
-from .scene import Scene
 
 SET_PREFIX = "set:"  # point-data name prefix of a node set in meshio formats
 
@@ -103,28 +102,3 @@ def _write_json(path: Path, data: dict) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(json.dumps(data, indent=2))
     os.replace(tmp, path)
-
-
-def read_user_mesh(scene: Scene) -> TetMesh:
-    """Read a user's tet mesh (tetra or tetra10, any meshio format) with tissue tags."""
-    import meshio
-
-    spec = scene.mesh_file
-    try:
-        m = meshio.read(spec.path)
-    except (OSError, meshio.ReadError) as exc:
-        raise ValueError(f"mesh_file.path: cannot read {spec.path}: {exc}") from None
-    blocks = [(i, c) for i, c in enumerate(m.cells) if c.type in ("tetra", "tetra10")]
-    if not blocks:
-        raise ValueError(f"mesh_file.path: {spec.path} holds no tetrahedra")
-    if spec.tag_field not in m.cell_data:
-        raise ValueError(f"mesh_file.tag_field: {spec.tag_field!r} not in {sorted(m.cell_data)}")
-    tets4 = np.vstack([c.data[:, :4] for _, c in blocks])
-    tags = np.concatenate([m.cell_data[spec.tag_field][i] for i, _ in blocks])
-    names = tuple(spec.tags)
-    lookup = {v: k for k, v in enumerate(spec.tags.values())}
-    unknown = sorted(set(np.unique(tags).tolist()) - set(lookup))
-    if unknown:
-        raise ValueError(f"mesh_file.tags: cell tags {unknown} are not mapped to a tissue")
-    tissue = np.array([lookup[v] for v in tags.tolist()])
-    return from_vertices(np.asarray(m.points, dtype=np.float64), tets4, tissue, names)

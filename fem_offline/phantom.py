@@ -140,13 +140,13 @@ def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
 
 
 def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
-    """Mesh the phantom; return nodes (n, 3), 10-node tets (m, 10) in gmsh order, tissue ids (m,), names.
+    """Mesh the phantom; return nodes (n, 3), corner tets (m, 4), tissue ids (m,), names.
 
     A mirror-symmetric scene is meshed on x >= 0 and reflected, so the mesh itself is symmetric
     and beta -> -beta mirrors the discrete solution exactly.
 
-    Second order is straight-sided (Mesh.SecondOrderLinear = 1): gmsh's curved P2 tets come out
-    with inverted elements on this geometry.
+    gmsh meshes first order; mesh.from_vertices adds the P2 edge nodes at the edge midpoints
+    (straight-sided: gmsh's curved P2 tets came out with inverted elements on this geometry).
     """
     if scene.phantom is None:
         raise ValueError("scene has no [phantom] section")
@@ -161,10 +161,8 @@ def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tup
         for i, name in enumerate(names):
             gmsh.model.addPhysicalGroup(3, pieces[name], tag=i + 1, name=name)
         _size_field(gmsh, scene, pieces)
-        gmsh.option.setNumber("Mesh.SecondOrderLinear", 1)
         gmsh.option.setNumber("Mesh.Optimize", 1)
         gmsh.model.mesh.generate(3)
-        gmsh.model.mesh.setOrder(2)
         node_tags, coords, _ = gmsh.model.mesh.getNodes()
         index = np.zeros(int(node_tags.max()) + 1, dtype=np.int64)
         index[node_tags.astype(np.int64)] = np.arange(node_tags.size)
@@ -173,9 +171,9 @@ def build_phantom(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tup
             for vol in pieces[name]:
                 etypes, _, enodes = gmsh.model.mesh.getElements(3, vol)
                 for etype, nodes in zip(etypes, enodes):
-                    if etype != 11:  # 11 = 10-node tetrahedron
+                    if etype != 4:  # 4 = 4-node tetrahedron
                         raise RuntimeError(f"unexpected gmsh element type {etype}")
-                    t = index[np.asarray(nodes, dtype=np.int64)].reshape(-1, 10)
+                    t = index[np.asarray(nodes, dtype=np.int64)].reshape(-1, 4)
                     tets.append(t)
                     tissue.append(np.full(len(t), i))
     points, tets, tissue = coords.reshape(-1, 3), np.vstack(tets), np.concatenate(tissue)

@@ -1,11 +1,8 @@
-"""The discrete problem: P2 basis data, materials, constraints and loads for the effects a scene switches on.
+"""The discrete problem: P2 basis data, per-tet materials, constraints and loads for the effects a scene switches on.
 
-Boundary conditions (u in mm):
-    bones (effects.fixed_bones):  u = 0 on every node of a bone tissue
-    table (effects.table):        u_z = 0 on the bottom face z = z_min (frictionless sliding)
-    guide:                        u = d w(X) a(beta) on the wall patch, w = cos^2(pi r / 2R)
-    gravity (effects.gravity):    body force -rho g e_z, rho g in kPa/mm
-Tets whose nodes are all fixed (the bones) cannot change K_II and are not assembled.
+Materials: materials.py; boundary conditions (bones, table, guide): boundary.py and guide.py;
+gravity: gravity.py. Tets whose nodes are all fixed (the bones) cannot change K_II and are not
+assembled.
 """
 
 from __future__ import annotations
@@ -15,13 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import elasticity as el
-from .assembly import Pattern, assemble_vector, build_pattern
+from . import guide
+from .assembly import Pattern, build_pattern
+from .boundary import constraints
+from .gravity import body_force
+from .materials import lame
 from .mesh import TetMesh, skfem_mesh
-from .regions import guide_weights
 from .scene import Scene
-
-G_MM_S2 = 9.81
-PA_TO_KPA_PER_MM = 1e-6  # rho [kg/m^3] * g [m/s^2] = N/m^3 = 1e-6 kPa/mm
 
 
 @dataclass(frozen=True)
@@ -52,10 +49,9 @@ class Problem:
         return self.scene.effects.geometric_nonlinearity
 
     def dirichlet(self, displacement_mm: float, angle_deg: float) -> np.ndarray:
-        """Prescribed displacement on all DOFs (zero where free)."""
-        g = np.zeros(self.n_dofs)
-        g[self.guide_dofs] = displacement_mm * self.guide_weight[:, None] * self.scene.guide.direction(angle_deg)
-        return g
+        """Prescribed displacement on all DOFs (zero where free): the guide's field d w a(beta)."""
+        return guide.prescribed(self.scene.guide, dofs=self.guide_dofs, weight=self.guide_weight, n_dofs=self.n_dofs,
+                                displacement_mm=displacement_mm, angle_deg=angle_deg)
 
     def element_displacement(self, u: np.ndarray) -> np.ndarray:
         return u[self.pattern.edofs].reshape(-1, 10, 3)
@@ -66,28 +62,6 @@ class Problem:
         return float(np.linalg.det(H + np.eye(3)).min())
 
 
-def lame(scene: Scene, mesh: TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-tet mu, lambda (kPa) and density (kg/m^3) from the scene's tissues."""
-    tissues = [scene.tissues[n] for n in mesh.tissue_names]
-    E = np.array([t.youngs for t in tissues])[mesh.tissue]
-    nu = np.array([t.poisson for t in tissues])[mesh.tissue]
-    rho = np.array([t.density_kg_m3 for t in tissues])[mesh.tissue]
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu)), rho
-
-
-def _constraints(scene: Scene, mesh: TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(fixed DOFs, guide DOFs (n_patch, 3), guide weights)."""
-    fixed = []
-    if scene.effects.fixed_bones:
-        fixed.append((3 * mesh.node_sets["bones"][:, None] + np.arange(3)).ravel())
-    if scene.effects.table:
-        fixed.append(3 * mesh.node_sets["table"] + 2)
-    patch, weight = guide_weights(mesh, scene)
-    guide = 3 * patch[:, None] + np.arange(3)
-    fixed = np.setdiff1d(np.concatenate(fixed) if fixed else np.array([], int), guide.ravel())
-    return fixed, guide, weight
-
-
 def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     """Assemble-ready data for the effects the scene switches on."""
     from skfem import Basis, ElementTetP2
@@ -96,9 +70,9 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     if not np.allclose(basis.doflocs.T, mesh.nodes, atol=1e-9 * np.abs(mesh.nodes).max()):
         raise ValueError("mesh nodes are not in scikit-fem's P2 DOF order; build it with mesh.from_vertices")
     tets = basis.element_dofs.T  # skfem local order, matching basis.basis below
-    fixed, guide, weight = _constraints(scene, mesh)
+    fixed, guide_dofs, weight = constraints(scene, mesh)
     constrained = np.zeros(3 * len(mesh.nodes), bool)
-    constrained[fixed] = constrained[guide.ravel()] = True
+    constrained[fixed] = constrained[guide_dofs.ravel()] = True
     active = ~constrained[(3 * tets[:, :, None] + np.arange(3))].reshape(len(tets), -1).all(axis=1)
     G = np.stack([basis.basis[a][0].grad for a in range(10)])  # (10, 3, n_tets, n_qp)
     G = np.ascontiguousarray(G.transpose(2, 3, 0, 1)[active])
@@ -108,8 +82,5 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     body = None
     if scene.effects.gravity:
         N = np.stack([basis.basis[a][0].value for a in range(10)])[:, active]  # (10, n_active, n_qp)
-        fz = -rho * G_MM_S2 * PA_TO_KPA_PER_MM
-        fe = np.zeros((active.sum(), 10, 3))
-        fe[:, :, 2] = np.einsum("aeq,eq->ea", N, W) * fz[:, None]
-        body = assemble_vector(pattern, fe)
-    return Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide, weight, body, active)
+        body = body_force(N=N, W=W, density_kg_m3=rho, pattern=pattern)
+    return Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide_dofs, weight, body, active)

@@ -16,6 +16,9 @@ from typing import Annotated
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from .guide import direction as guide_direction
+from .materials import youngs_from_shear_wave_kpa
+
 Vec3 = tuple[float, float, float]
 Positive = Annotated[float, Field(gt=0)]
 
@@ -48,7 +51,8 @@ class Tissue(_Strict):
         """Young's modulus in kPa; from v_s by eq. 1, E = 2 (1 + nu) v_s^2 rho (Pa -> kPa)."""
         if self.youngs_kpa is not None:
             return self.youngs_kpa
-        return 2.0 * (1.0 + self.poisson) * self.shear_wave_speed_m_s**2 * self.density_kg_m3 / 1e3
+        return youngs_from_shear_wave_kpa(
+            shear_wave_speed_m_s=self.shear_wave_speed_m_s, density_kg_m3=self.density_kg_m3, poisson=self.poisson)
 
 
 class Phantom(_Strict):
@@ -83,7 +87,7 @@ class UserMesh(_Strict):
 
 
 class Guide(_Strict):
-    """Rigid needle-guide tip pushing the rectal wall.
+    """Rigid needle-guide tip pushing the rectal wall (its geometry and prescribed field: guide.py).
 
     The tip moves by d * a(beta), a(beta) = axis rotated by beta about tilt_normal. Wall nodes
     within patch_radius_mm of the tip follow it with the rounded-tip weight
@@ -105,11 +109,8 @@ class Guide(_Strict):
         return self
 
     def direction(self, angle_deg: float) -> np.ndarray:
-        """Unit push direction a(beta): axis rotated by beta about tilt_normal (Rodrigues)."""
-        a = np.asarray(self.axis) / np.linalg.norm(self.axis)
-        n = np.asarray(self.tilt_normal) / np.linalg.norm(self.tilt_normal)
-        b = np.deg2rad(angle_deg)
-        return a * np.cos(b) + np.cross(n, a) * np.sin(b)
+        """Unit push direction a(beta): axis rotated by beta about tilt_normal (guide.direction)."""
+        return guide_direction(self, angle_deg)
 
 
 class Effects(_Strict):

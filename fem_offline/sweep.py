@@ -26,11 +26,14 @@ from contracts import sweep as folder
 from contracts.files import atomic_savez, sha256
 from contracts.mesh import TetMesh, read_mesh, write_mesh
 
-from .io import mesh_for_scene
-from .mirror import guide_is_mirrored, mirror_map, reflect
+from .continuation import PathState, solve_path
+from .guide import is_mirrored
+from .linear import linear_modes, superpose
+from .meshing import mesh_for_scene
+from .mirror import mirror_map, reflect
+from .newton import ConvergenceError, Stats
 from .problem import build_problem
 from .scene import Scene, SceneError, parse_scene
-from .solve import ConvergenceError, PathState, Stats, linear_modes, solve_path
 
 log = logging.getLogger(__name__)
 
@@ -96,8 +99,8 @@ def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[C
         with np.load(out / case.file) as z:
             return z["displacement"].ravel()
 
-    state = PathState(load(path[done - 1]), path[done - 1].displacement_mm)
-    state.history = [(c.displacement_mm, load(c)) for c in path[max(0, done - 3) : done - 1]]
+    history = tuple((c.displacement_mm, load(c)) for c in path[max(0, done - 3) : done - 1])
+    state = PathState(load(path[done - 1]), path[done - 1].displacement_mm, history)
     return state, path[done:]
 
 
@@ -125,18 +128,17 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
 def _write_linear(scene: Scene, mesh: TetMesh, out: Path, pending: list[Case], progress) -> None:
     """Linear model: one factorisation, two unit solves, every snapshot by superposition."""
     t0 = time.perf_counter()
-    u0, ua, ub = linear_modes(build_problem(scene, mesh))
+    modes = linear_modes(build_problem(scene, mesh))
     per = (time.perf_counter() - t0) / max(len(pending), 1)
     for case in pending:
-        b = np.deg2rad(case.angle_deg)
-        u = (u0 + case.displacement_mm * (np.cos(b) * ua + np.sin(b) * ub)).reshape(-1, 3)
+        u = superpose(modes, case.displacement_mm, case.angle_deg)
         write_snapshot(out, case, u, Stats(iterations=1, seconds=per))
         progress.update(1)
 
 
 def _mirror_pairs(scene: Scene, mesh: TetMesh, paths: list[list[Case]]):
     """(node mirror map, {negative-angle path index: its positive twin's index}), or (None, {})."""
-    if not guide_is_mirrored(scene):
+    if not is_mirrored(scene.guide):
         return None, {}
     angles = [p[0].angle_deg for p in paths]
     twins = {i: angles.index(-a) for i, a in enumerate(angles) if a < 0 and -a in angles}

@@ -5,27 +5,27 @@
 
 Prints medians measured in this run; with --sweep it also reads a finished sweep's manifest for
 the measured full-sweep time. Not a test: the numbers depend on the machine and its load.
+Run it with MKL_NUM_THREADS=1 (`make bench` does): one core per path, as the sweep runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 from statistics import median
 
-os.environ.setdefault("MKL_NUM_THREADS", "1")  # one core per path, as the sweep runs
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from fem_offline import elasticity as el  # noqa: E402
-from fem_offline import solve as S  # noqa: E402
-from fem_offline.io import load_or_build_mesh  # noqa: E402
-from fem_offline.linsolve import AMG_MIN_DOFS  # noqa: E402
-from fem_offline.problem import build_problem  # noqa: E402
-from fem_offline.scene import load_scene  # noqa: E402
+from fem_offline import elasticity as el
+from fem_offline.continuation import solve_path
+from fem_offline.linear import linear_modes, superpose
+from fem_offline.linsolve import AMG_MIN_DOFS
+from fem_offline.mesh import skfem_mesh
+from fem_offline.meshing import load_or_build_mesh
+from fem_offline.problem import build_problem
+from fem_offline.scene import load_scene
 
 
 def timed(fn, repeat=1):
@@ -42,7 +42,7 @@ def skfem_assembly_seconds(problem) -> float:
     from skfem import Basis, BilinearForm, ElementTetP2, ElementVector, asm
     from skfem.helpers import ddot, div, sym_grad
 
-    from fem_offline.problem import lame
+    from fem_offline.materials import lame
 
     mesh = problem.mesh
     mu, lam, _ = lame(problem.scene, mesh)
@@ -81,15 +81,13 @@ def main() -> None:
 
     lin = scene.model_copy(update={"effects": scene.effects.model_copy(update={"geometric_nonlinearity": False})})
     lin_problem = build_problem(lin, mesh)
-    t_lin, modes = timed(lambda: S.linear_modes(lin_problem), repeat=1 if large else 3)
-    u0, ua, ub = modes
-    t_sup, _ = timed(lambda: [u0 + d * (np.cos(b) * ua + np.sin(b) * ub)
-                              for b in np.deg2rad(scene.sweep.angles_deg) for d in scene.sweep.displacements_mm])
+    t_lin, modes = timed(lambda: linear_modes(lin_problem), repeat=1 if large else 3)
+    t_sup, _ = timed(lambda: [superpose(modes, scene.sweep.displacements_mm, b) for b in scene.sweep.angles_deg])
     how = "AMG setup + 2 unit solves, once" if large else "factorise + 2 unit solves, median of 3"
     print(f"linear: {t_lin:.2f} s per solve ({how}); all {n_cases} cases by superposition "
           f"{t_lin + t_sup:.2f} s")
 
-    steps = list(S.solve_path(problem, scene.sweep.displacements_mm[: args.steps], 10.0))
+    steps = list(solve_path(problem, scene.sweep.displacements_mm[: args.steps], 10.0))
     secs = [s.seconds for _, _, s in steps]
     its = [s.iterations for _, _, s in steps]
     per = median(secs)

@@ -4,24 +4,23 @@
 
 Solves the same case on both meshes (linear and nonlinear) and evaluates the fine P2 solution at
 the coarse mesh's prostate-surface nodes (interpolation inside the containing fine tet).
+PARDISO's threads come from the caller's MKL_NUM_THREADS (e.g. 2 to use both cores of a small machine).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
-os.environ.setdefault("MKL_NUM_THREADS", "2")
+import numpy as np
+from skfem import Basis, ElementTetP2
 
-import numpy as np  # noqa: E402
-from skfem import Basis, ElementTetP2  # noqa: E402
-
-from fem_offline.io import mesh_for_scene  # noqa: E402
-from fem_offline.problem import build_problem  # noqa: E402
-from fem_offline.scene import load_scene  # noqa: E402
-from fem_offline.solve import solve_case  # noqa: E402
+from fem_offline.mesh import skfem_mesh
+from fem_offline.meshing import mesh_for_scene
+from fem_offline.problem import build_problem
+from fem_offline.scene import load_scene
+from fem_offline.solve import solve_case
 
 
 def _solve(scene, mesh, nonlinear: bool, d: float, beta: float, step_mm: float):

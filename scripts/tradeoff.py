@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from contracts.model import onnx_session
-from fem_offline.io import mesh_for_scene
+from fem_offline.meshing import mesh_for_scene
 from fem_offline.linsolve import AMG_MIN_DOFS
 from fem_offline.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.solve import linear_modes
+from fem_offline.linear import linear_modes, superpose
 from service.model import PointLocator, p2_weights
 from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, training_set
 from training.snapshots import read_offgrid, read_sweep, snapshots_of
@@ -65,11 +65,11 @@ def fe_mesh_rows(scene_path: Path) -> list[dict]:
         runs = []
         for _ in range(3 if len(mesh.tets) < 30000 else 1):
             t0 = time.perf_counter()
-            _, ua, ub = linear_modes(problem)
+            modes = linear_modes(problem)
             runs.append(time.perf_counter() - t0)
         t = float(np.median(runs))
         del problem
-        fields.append((ua.reshape(-1, 3), ub.reshape(-1, 3)))
+        fields.append(modes)
         meshes.append(mesh)
         times.append(t)
         solver = "AMG-CG" if 3 * len(mesh.nodes) >= AMG_MIN_DOFS else "PARDISO"
@@ -86,11 +86,7 @@ def fe_mesh_rows(scene_path: Path) -> list[dict]:
 
     rows = []
     for beta in (-10.0, 0.0, 10.0):
-        b = np.radians(beta)
-        ref = None
-        vals = []
-        for mesh, (ua, ub) in zip(meshes, fields):
-            vals.append(at_probes(mesh, 10.0 * (np.cos(b) * ua + np.sin(b) * ub)))
+        vals = [at_probes(mesh, superpose(modes, 10.0, beta)) for mesh, modes in zip(meshes, fields)]
         ref = vals[-1]
         for i, v in enumerate(vals[:-1]):
             rows.append((i, nodal(v, ref)))
@@ -109,9 +105,7 @@ def physics_rows(sweep, scene_path: Path) -> list[dict]:
     lin_scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"geometric_nonlinearity": False})})
     problem = build_problem(lin_scene, sweep.mesh)
     t_lin = median_time(lambda: linear_modes(problem), 3)
-    u0, ua, ub = linear_modes(problem)
-    d, a = sweep.inputs[:, 0], np.radians(sweep.inputs[:, 1])
-    lin = d[:, None, None] * (np.cos(a)[:, None, None] * ua.reshape(1, -1, 3) + np.sin(a)[:, None, None] * ub.reshape(1, -1, 3))
+    lin = superpose(linear_modes(problem), sweep.inputs[:, 0], sweep.inputs[:, 1])
     err = nodal(lin, sweep.displacement)
     # the wall time of the sweep's last run: a sweep run in one go states its whole time
     nl_seconds = sweep.manifest.wall_seconds_this_run

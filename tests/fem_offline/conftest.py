@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from fem_offline.io import mesh_for_scene
+from fem_offline.meshing import mesh_for_scene
 from fem_offline.problem import build_problem
 from fem_offline.scene import load_scene
 
@@ -27,9 +27,9 @@ def tiny_problem(tiny_scene, tiny_mesh):
 @pytest.fixture(scope="session")
 def corner_path(tiny_problem):
     """beta = +10 deg, 2.5 ... 10 mm: the hard corner of the sweep."""
-    from fem_offline import solve as S
+    from fem_offline.continuation import solve_path
 
-    return list(S.solve_path(tiny_problem, [2.5, 5.0, 7.5, 10.0], 10.0))
+    return list(solve_path(tiny_problem, [2.5, 5.0, 7.5, 10.0], 10.0))
 
 
 @pytest.fixture(scope="session")

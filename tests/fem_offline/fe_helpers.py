@@ -6,6 +6,7 @@ from skfem import Basis, ElementTetP2
 from fem_offline import elasticity as el
 from fem_offline.assembly import apply_matrix, assemble_matrix, assemble_vector, build_pattern
 from fem_offline.linsolve import Factor
+from fem_offline.materials import lame_kpa
 
 
 def p2_data(mesh, intorder=2):
@@ -16,8 +17,7 @@ def p2_data(mesh, intorder=2):
 
 
 def lame_params(youngs, poisson, n):
-    mu = youngs / (2 * (1 + poisson))
-    lam = youngs * poisson / ((1 + poisson) * (1 - 2 * poisson))
+    mu, lam = lame_kpa(youngs, poisson)
     return np.full(n, mu), np.full(n, lam)
 
 

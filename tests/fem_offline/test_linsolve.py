@@ -53,11 +53,11 @@ def test_newton_with_amg_tangent_solves_reaches_pardisos_equilibrium(tiny_proble
     """Above AMG_MIN_DOFS Newton's tangent solves are AMG-preconditioned CG (the hierarchy of an
     earlier tangent reused while CG stays short); it must converge to the same state."""
     import fem_offline.linsolve as ls
-    from fem_offline import solve as S
+    from fem_offline.solve import solve_case
 
-    u_direct, direct = S.solve_case(tiny_problem, 2.5, 10.0)
+    u_direct, direct = solve_case(tiny_problem, 2.5, 10.0)
     monkeypatch.setattr(ls, "AMG_MIN_DOFS", 0)
-    u_amg, amg = S.solve_case(tiny_problem, 2.5, 10.0)
+    u_amg, amg = solve_case(tiny_problem, 2.5, 10.0)
     assert amg.cg_iterations > direct.cg_iterations  # the AMG path ran
     assert amg.residual <= tiny_problem.scene.solver.rtol
     assert np.abs(u_amg - u_direct).max() < 1e-4 * np.abs(u_direct).max()

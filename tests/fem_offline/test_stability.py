@@ -3,29 +3,33 @@
 import numpy as np
 import pytest
 
-from fem_offline import solve as S
+from fem_offline.continuation import solve_path
+from fem_offline.newton import ConvergenceError, residual
 from fem_offline.problem import build_problem
 from fem_offline.regions import build_node_sets
 from fem_offline.scene import Tissue
+from fem_offline.solve import solve_case
 
 from .fe_helpers import internal_force_nh, lame_params, lame_sphere_error, p2_data, solve_linear
 
 
 def _equilibrium(problem, u):
     """(||r_free|| / ||reactions||, min det F) re-evaluated from scratch at a returned state."""
-    ev = S._evaluate(problem, u.ravel())
+    ev = residual(problem, u.ravel())
     reactions = np.linalg.norm(np.delete(ev.r, problem.free))
     return np.linalg.norm(ev.r[problem.free]) / reactions, ev.min_j
 
 
+@pytest.mark.slow
 def test_sweep_corners_at_10mm_are_in_equilibrium(tiny_problem, corner_path):
-    """beta = -10 and +10 deg at 10 mm (the +10 path is shared with test_solver)."""
-    (_, u_minus, _), = S.solve_path(tiny_problem, [10.0], -10.0)
+    """beta = -10 and +10 deg at 10 mm (the +10 path is the corner_path fixture, shared with test_continuation and test_solve)."""
+    (_, u_minus, _), = solve_path(tiny_problem, [10.0], -10.0)
     for u in (u_minus, corner_path[-1][1]):
         rel, min_j = _equilibrium(tiny_problem, u)
         assert rel <= tiny_problem.scene.solver.rtol and min_j > 0.3
 
 
+@pytest.mark.slow
 def test_push_past_the_sweep_is_right_until_it_fails_loudly(tiny_scene, tiny_mesh):
     """beta = 10 deg, pushed in 2.5 mm strides until the solver gives up: every state returned is in
     equilibrium with det F > 0, and the failure is a ConvergenceError naming the displacement,
@@ -35,8 +39,8 @@ def test_push_past_the_sweep_is_right_until_it_fails_loudly(tiny_scene, tiny_mes
     scene = tiny_scene.model_copy(update={"solver": solver})
     problem = build_problem(scene, tiny_mesh)
     converged = []
-    with pytest.raises(S.ConvergenceError, match=r"no equilibrium found for guide displacement [\d.]+ mm at beta 10 deg"):
-        for d, u, _ in S.solve_path(problem, np.arange(2.5, 80.1, 2.5), 10.0):
+    with pytest.raises(ConvergenceError, match=r"no equilibrium found for guide displacement [\d.]+ mm at beta 10 deg"):
+        for d, u, _ in solve_path(problem, np.arange(2.5, 80.1, 2.5), 10.0):
             rel, min_j = _equilibrium(problem, u)
             assert rel <= problem.scene.solver.rtol and min_j > 0, (d, rel, min_j)
             converged.append(d)
@@ -59,7 +63,7 @@ def contrast_solutions(tiny_scene, tiny_mesh):
     linear = tiny_scene.model_copy(update={"effects": tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})})
     for ratio in (235.0, 1.7e5):  # Table 1: E_exp bone / fat, and E_L bone / fat
         problem = build_problem(*_with_elastic_pubic_bone(linear, tiny_mesh, ratio))
-        u, _ = S.solve_case(problem, 10.0, 10.0)
+        u, _ = solve_case(problem, 10.0, 10.0)
         out[ratio] = (problem, u)
     return out
 
@@ -88,9 +92,10 @@ def test_stiff_bone_barely_strains_and_the_prostate_converges(contrast_solutions
     assert np.linalg.norm(u[prostate] - u235[prostate], axis=1).max() < 0.02 * peak
 
 
+@pytest.mark.slow
 def test_stiffness_contrast_nonlinear_path_converges(tiny_scene, tiny_mesh):
     problem = build_problem(*_with_elastic_pubic_bone(tiny_scene, tiny_mesh, 1.7e5))
-    (d, u, _), = S.solve_path(problem, [5.0], 10.0)
+    (d, u, _), = solve_path(problem, [5.0], 10.0)
     rel, min_j = _equilibrium(problem, u)
     assert rel <= problem.scene.solver.rtol and min_j > 0.5
 
@@ -101,11 +106,11 @@ def test_poisson_ratio_range_lame_sphere(nu):
     assert lame_sphere_error(nu) < 0.01
 
 
-@pytest.mark.parametrize("nu", [0.3, 0.499])
+@pytest.mark.parametrize("nu", [0.3, pytest.param(0.499, marks=pytest.mark.slow)])
 def test_poisson_ratio_range_phantom(tiny_scene, tiny_mesh, nu):
     tissues = {k: v.model_copy(update={"poisson": nu}) for k, v in tiny_scene.tissues.items()}
     problem = build_problem(tiny_scene.model_copy(update={"tissues": tissues}), tiny_mesh)
-    (d, u, _), = S.solve_path(problem, [7.5], 10.0)
+    (d, u, _), = solve_path(problem, [7.5], 10.0)
     rel, min_j = _equilibrium(problem, u)
     assert rel <= problem.scene.solver.rtol and min_j > 0.2, (rel, min_j)
 

@@ -1,0 +1,97 @@
+"""Path continuation in the guide displacement: load steps, the path predictor and step halving.
+
+A path at one angle beta visits d_1 < d_2 < ... . Between converged states it moves in load steps
+of at most solver.max_step_mm; each step starts Newton (newton.py) from a Lagrange extrapolation
+through up to three converged states, and a step that fails is halved, up to solver.max_halvings
+times. With gravity on, the path starts from the gravity-loaded state (loaded in 4 steps).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .newton import ConvergenceError, FactorCache, Stats, newton
+from .problem import Problem
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PathState:
+    """What a displacement path carries from one converged step to the next."""
+
+    u: np.ndarray  # (n_dofs,)
+    d_mm: float = 0.0
+    history: tuple[tuple[float, np.ndarray], ...] = ()  # up to two earlier (d, u) for the predictor
+    cache: FactorCache = field(default_factory=FactorCache)  # shared along the path (newton.py)
+
+
+def predict(state: PathState, d_mm: float) -> np.ndarray:
+    """Extrapolate along the path (Lagrange, through up to three converged states)."""
+    ds = [d for d, _ in state.history] + [state.d_mm]
+    us = [u for _, u in state.history] + [state.u]
+    guess = np.zeros_like(state.u)
+    for i, (di, ui) in enumerate(zip(ds, us)):
+        weight = np.prod([(d_mm - dj) / (di - dj) for j, dj in enumerate(ds) if j != i])
+        guess += weight * ui
+    return guess
+
+
+def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, stats: Stats,
+            depth: int = 0) -> tuple[PathState, Stats]:
+    """The path state at guide displacement d_mm, halving the load step on failure; and stats + the work."""
+    g = problem.dirichlet(d_mm, angle_deg)
+    guess = predict(state, d_mm)
+    if problem.nonlinear and problem.min_jacobian(guess) <= 0:
+        guess = state.u
+    try:
+        u, stats = newton(problem, guess, g, state.cache, stats)
+    except ConvergenceError as exc:
+        if depth >= problem.scene.solver.max_halvings:
+            raise
+        stats = replace(exc.stats, halvings=exc.stats.halvings + 1)
+        log.info("halving load step %.4g -> %.4g mm", state.d_mm, d_mm)
+        state, stats = advance(problem, state, 0.5 * (state.d_mm + d_mm), angle_deg, stats, depth + 1)
+        return advance(problem, state, d_mm, angle_deg, stats, depth + 1)
+    history = (*state.history[-1:], (state.d_mm, state.u))
+    return replace(state, u=u, d_mm=d_mm, history=history), stats
+
+
+def initial_state(problem: Problem) -> PathState:
+    """Reference state, or the gravity-loaded state when gravity is on (loaded in 4 steps)."""
+    state = PathState(np.zeros(problem.n_dofs))
+    if problem.body_force is None:
+        return state
+    full = problem.body_force
+    for s in (0.25, 0.5, 0.75, 1.0):
+        scaled = replace(problem, body_force=s * full)
+        u, _ = newton(scaled, state.u, np.zeros(problem.n_dofs), state.cache)
+        state = replace(state, u=u)
+    return state
+
+
+def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: PathState | None = None):
+    """Yield (d_mm, u (n_nodes, 3), Stats) for increasing guide displacements at one angle."""
+    if state is None:
+        state = initial_state(problem)
+    max_step = problem.scene.solver.max_step_mm
+    for d in displacements_mm:
+        stats, t0 = Stats(), time.perf_counter()
+        n_sub = max(1, int(np.ceil(abs(d - state.d_mm) / max_step - 1e-9)))
+        for target in np.linspace(state.d_mm, d, n_sub + 1)[1:]:
+            last = state.d_mm
+            try:
+                state, stats = advance(problem, state, float(target), angle_deg, stats)
+            except ConvergenceError as exc:
+                raise ConvergenceError(
+                    f"no equilibrium found for guide displacement {target:.4g} mm at beta {angle_deg:g} deg "
+                    f"(last converged: {last:.4g} mm; load step halved {problem.scene.solver.max_halvings} times): {exc}",
+                    exc.stats,
+                ) from None
+            log.info("%.4g mm at beta %g deg: %d Newton iterations, %d CG, %d factorisations, %.1f s so far",
+                     target, angle_deg, stats.iterations, stats.cg_iterations, stats.factorizations, time.perf_counter() - t0)
+        yield float(d), state.u.reshape(-1, 3).copy(), replace(stats, seconds=time.perf_counter() - t0)

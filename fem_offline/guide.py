@@ -1,0 +1,62 @@
+"""The needle guide: its push direction, the wall patch it carries and the displacement it prescribes.
+
+The tip moves by d a(beta), a(beta) = axis rotated by beta about tilt_normal (Rodrigues). Boundary
+nodes within R = patch_radius_mm of the tip follow it with the rounded-tip weight
+
+    u(X) = d w(r) a(beta),   w(r) = cos^2(pi r / (2 R)),   r = |X - tip|,
+
+so the prescribed field is smooth at the patch rim. Lengths in mm, angles in degrees.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from contracts.tet10 import boundary_faces
+
+from .mirror import REFLECT
+
+if TYPE_CHECKING:
+    from .mesh import TetMesh
+    from .scene import Guide
+
+
+def direction(guide: Guide, angle_deg: float) -> np.ndarray:
+    """Unit push direction a(beta) (3,): axis rotated by beta about tilt_normal."""
+    a = np.asarray(guide.axis) / np.linalg.norm(guide.axis)
+    n = np.asarray(guide.tilt_normal) / np.linalg.norm(guide.tilt_normal)
+    b = np.deg2rad(angle_deg)
+    return a * np.cos(b) + np.cross(n, a) * np.sin(b)
+
+
+def rounded_tip_weight(r_mm: np.ndarray, radius_mm: float) -> np.ndarray:
+    """w(r) = cos^2(pi r / 2R): 1 at the tip, 0 with zero slope at the rim."""
+    return np.cos(0.5 * np.pi * r_mm / radius_mm) ** 2
+
+
+def patch(mesh: TetMesh, guide: Guide) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary nodes within patch_radius_mm of the tip (k,) and their rounded-tip weights (k,)."""
+    ext, _ = boundary_faces(mesh.tets)
+    wall = np.unique(ext)
+    r = np.linalg.norm(mesh.nodes[wall] - np.asarray(guide.tip_mm), axis=1)
+    radius = guide.patch_radius_mm
+    inside = r < radius
+    if not inside.any():
+        raise ValueError(f"guide.tip_mm: no boundary node within patch_radius_mm={radius} of the tip")
+    return wall[inside], rounded_tip_weight(r[inside], radius)
+
+
+def prescribed(guide: Guide, *, dofs: np.ndarray, weight: np.ndarray, n_dofs: int,
+               displacement_mm: float, angle_deg: float) -> np.ndarray:
+    """u = d w a(beta) on the patch DOFs (k, 3), zero elsewhere; (n_dofs,)."""
+    g = np.zeros(n_dofs)
+    g[dofs] = displacement_mm * weight[:, None] * direction(guide, angle_deg)
+    return g
+
+
+def is_mirrored(guide: Guide) -> bool:
+    """a(-beta) = S a(beta), S = diag(-1, 1, 1), and the tip lies on the mirror plane x = 0."""
+    b = 7.0
+    return guide.tip_mm[0] == 0 and np.allclose(direction(guide, -b), direction(guide, b) * REFLECT, atol=1e-12)

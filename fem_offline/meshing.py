@@ -1,0 +1,61 @@
+"""The mesh a scene describes: the gmsh phantom or a user's tet mesh, made P2, with its named node sets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .mesh import TetMesh, from_vertices, load
+from .regions import build_node_sets
+from .scene import Scene
+
+
+def mesh_for_scene(scene: Scene) -> TetMesh:
+    """Mesh the phantom with gmsh, or read the user's mesh; attach the named node sets."""
+    if scene.mesh_file is not None:
+        base = read_user_mesh(scene)
+    else:
+        from .phantom import build_phantom
+
+        base = from_vertices(*build_phantom(scene))
+    return build_node_sets(base, scene)
+
+
+def load_or_build_mesh(scene: Scene, path: str | Path | None) -> TetMesh:
+    """Read a saved mesh (re-deriving node sets for this scene's guide) or build a new one."""
+    if path is None:
+        return mesh_for_scene(scene)
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"--mesh: no such file {path}")
+    mesh = load(path)
+    missing = sorted(set(mesh.tissue_names) - set(scene.tissues))
+    if missing:
+        raise ValueError(f"--mesh: {path} has tissues {missing} that the scene does not define")
+    return build_node_sets(mesh, scene)
+
+
+def read_user_mesh(scene: Scene) -> TetMesh:
+    """Read a user's tet mesh (tetra or tetra10, any meshio format) with tissue tags."""
+    import meshio
+
+    spec = scene.mesh_file
+    try:
+        m = meshio.read(spec.path)
+    except (OSError, meshio.ReadError) as exc:
+        raise ValueError(f"mesh_file.path: cannot read {spec.path}: {exc}") from None
+    blocks = [(i, c) for i, c in enumerate(m.cells) if c.type in ("tetra", "tetra10")]
+    if not blocks:
+        raise ValueError(f"mesh_file.path: {spec.path} holds no tetrahedra")
+    if spec.tag_field not in m.cell_data:
+        raise ValueError(f"mesh_file.tag_field: {spec.tag_field!r} not in {sorted(m.cell_data)}")
+    tets4 = np.vstack([c.data[:, :4] for _, c in blocks])
+    tags = np.concatenate([m.cell_data[spec.tag_field][i] for i, _ in blocks])
+    names = tuple(spec.tags)
+    lookup = {v: k for k, v in enumerate(spec.tags.values())}
+    unknown = sorted(set(np.unique(tags).tolist()) - set(lookup))
+    if unknown:
+        raise ValueError(f"mesh_file.tags: cell tags {unknown} are not mapped to a tissue")
+    tissue = np.array([lookup[v] for v in tags.tolist()])
+    return from_vertices(np.asarray(m.points, dtype=np.float64), tets4, tissue, names)

@@ -1,0 +1,33 @@
+"""Run `python -m fem_offline` and write variants of tiny.toml for the CLI and sweep tests."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from .conftest import SCENES
+
+ROOT = Path(__file__).resolve().parents[2]
+
+LINEAR = "[effects]\ngeometric_nonlinearity = false\n"
+MINI = """[sweep]
+displacement_step_mm = 1.0
+displacement_max_mm = 2.0
+angle_min_deg = -10.0
+angle_max_deg = 10.0
+angle_step_deg = 20.0
+"""
+
+
+def cli(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "fem_offline", *map(str, args)], capture_output=True, text=True, cwd=ROOT, **kw)
+
+
+def scene_file(tmp_path, name, extra):
+    """tiny.toml with the sections named in `extra` replaced by `extra`'s."""
+    text = (SCENES / "tiny.toml").read_text()
+    for header in re.findall(r"^\[\w+\]$", extra, flags=re.M):
+        text = re.sub(rf"^{re.escape(header)}$.*?(?=^\[|\Z)", "", text, flags=re.M | re.S)
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text + "\n" + extra)
+    return path

@@ -1,0 +1,106 @@
+"""Sweep contracts: superposed linear snapshots, resumability, atomic files, pool vs Dask, mirrored paths."""
+
+import json
+import signal
+import subprocess
+import sys
+
+import numpy as np
+
+from fem_offline.mesh import load as load_mesh
+from fem_offline.problem import build_problem
+from fem_offline.scene import load_scene
+from fem_offline.solve import solve_case
+from fem_offline.sweep import run_sweep
+
+from .cli_helpers import LINEAR, MINI, ROOT, cli, scene_file
+
+# Solve the scene's first path as a sweep worker does, and SIGKILL the process as soon as its first
+# snapshot is on disk: a kill -9 at a known point, not at whatever moment a poll notices a file.
+KILL_AFTER_FIRST_SNAPSHOT = """
+import os, signal, sys
+from pathlib import Path
+from fem_offline import sweep
+from fem_offline.scene import load_scene
+
+write = sweep.write_snapshot
+
+
+def write_then_die(*args, **kw):
+    write(*args, **kw)
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+sweep.write_snapshot = write_then_die
+scene, out = load_scene(sys.argv[1]), Path(sys.argv[2])
+sweep.prepare(scene, out)
+sweep.run_path(scene.model_dump_json(), str(out), sweep.grid(scene)[0])
+"""
+
+
+def test_linear_sweep_superposes_and_resumes(tmp_path):
+    scene = load_scene(scene_file(tmp_path, "lin", LINEAR))
+    out = tmp_path / "sweep"
+    manifest = run_sweep(scene, out)
+    assert manifest.n_done == manifest.n_expected == 12 and not manifest.errors
+    snap = out / "snapshots" / "a002_d001.npz"  # +10 deg, 5 mm
+    with np.load(snap) as z:
+        # A direct solve on the sweep's own mesh (not a fresh gmsh run, which CI once saw differ).
+        expected, _ = solve_case(build_problem(scene, load_mesh(out / "mesh.npz")), 5.0, 10.0)
+        np.testing.assert_allclose(z["displacement"], expected, atol=1e-10)
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "snapshots").iterdir()}
+    snap.unlink()
+    manifest = run_sweep(scene, out)
+    assert manifest.n_done == 12 and snap.exists()
+    assert all((out / "snapshots" / n).stat().st_mtime_ns == t for n, t in stamps.items() if n != snap.name)
+    assert not [p for p in out.rglob("*") if p.name.startswith(".")]
+
+
+def test_sweep_refuses_a_folder_of_another_scene(tmp_path):
+    out = tmp_path / "sweep"
+    run_sweep(load_scene(scene_file(tmp_path, "lin", LINEAR)), out)
+    other = scene_file(tmp_path, "lin2", LINEAR.replace("false", "false\ngravity = true"))
+    run = cli("sweep", "--scene", other, "--out", out)
+    assert run.returncode == 2 and "another scene" in run.stderr
+
+
+def test_killed_sweep_resumes_to_the_same_answer(tmp_path, tiny_problem):
+    """Kill -9 right after the first snapshot: only whole files on disk; the rerun finishes the path."""
+    scene = scene_file(tmp_path, "one", MINI.replace("angle_min_deg = -10.0", "angle_min_deg = 10.0").replace("displacement_max_mm = 2.0", "displacement_max_mm = 3.0"))
+    out = tmp_path / "sweep"
+    killed = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_SNAPSHOT, str(scene), str(out)], cwd=ROOT, capture_output=True, text=True)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert [p.name for p in (out / "snapshots").iterdir()] == ["a000_d000.npz"]
+    np.load(out / "snapshots" / "a000_d000.npz")["displacement"]  # whole, readable
+    run = cli("sweep", "--scene", scene, "--out", out, "--workers", "1")
+    assert run.returncode == 0, run.stderr
+    with np.load(out / "snapshots" / "a000_d002.npz") as z:
+        expected, _ = solve_case(tiny_problem, 3.0, 10.0, step_mm=0.5)
+        np.testing.assert_allclose(z["displacement"], expected, atol=1e-5)
+    assert json.loads((out / "manifest.json").read_text())["n_done"] == 3
+
+
+def test_dask_cluster_matches_local_pool(tmp_path):
+    from distributed import LocalCluster
+
+    scene = load_scene(scene_file(tmp_path, "mini", MINI))
+    local = run_sweep(scene, tmp_path / "local", workers=2)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        remote = run_sweep(scene, tmp_path / "dask", scheduler=cluster.scheduler_address)
+    assert local.n_done == remote.n_done == 4
+    for row in local.snapshots:
+        a = np.load(tmp_path / "local" / row.file)["displacement"]
+        b = np.load(tmp_path / "dask" / row.file)["displacement"]
+        np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_symmetric_sweep_solves_half_and_reflects_the_rest(tmp_path, tiny_problem):
+    """Angles -10 and +10: only +10 is solved; the -10 snapshots are its reflections and equal a
+    direct nonlinear solve at -10 deg (the mesh and the guide are mirror-symmetric)."""
+    scene = load_scene(scene_file(tmp_path, "mini", MINI))
+    manifest = run_sweep(scene, tmp_path / "sweep")
+    assert manifest.n_done == 4 and manifest.n_mirrored == 2 and not manifest.errors
+    with np.load(tmp_path / "sweep" / "snapshots" / "a000_d001.npz") as z:  # -10 deg, 2 mm
+        assert str(z["mirrored_from"]) == "snapshots/a001_d001.npz" and float(z["angle_deg"]) == -10.0
+        direct, _ = solve_case(tiny_problem, 2.0, -10.0, step_mm=1.0)
+        np.testing.assert_allclose(z["displacement"], direct, atol=1e-6 * np.abs(direct).max())
