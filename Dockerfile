@@ -11,6 +11,7 @@ print('\n'.join(p['dependencies'] + p['optional-dependencies']['service']))" > r
  && python3 -m venv /opt/venv \
  && /opt/venv/bin/python -m pip install --no-cache-dir -r requirements.txt
 
+COPY contracts/ contracts/
 COPY service/ service/
 COPY models/default/ models/default/
 

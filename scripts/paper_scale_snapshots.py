@@ -11,7 +11,7 @@ interpolated with the quadratic shape functions of the coarse tet that contains 
 are FE-quality only to the coarse mesh's accuracy: this folder exists to time decoding
 (latency depends on node count and rank, not on the values), not to measure accuracy.
 Fine nodes just outside the coarse mesh (its curved surfaces are chords of the fine ones)
-take the nearest candidate tet, clipped.
+take the value at their projection onto the nearest coarse tet (`interpolation_matrix(..., nearest=True)`).
 """
 
 from __future__ import annotations
@@ -23,28 +23,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from fem_offline.io import atomic_savez  # noqa: E402
 from fem_offline.mesh import load  # noqa: E402
-from service.model import PointLocator, p2_weights  # noqa: E402
-
-
-def interpolation_matrix(coarse, fine_nodes: np.ndarray) -> sp.csr_matrix:
-    """(n_fine, n_coarse) P2 interpolation weights."""
-    loc = PointLocator(coarse.nodes, coarse.tets)
-    tet, bary = loc.locate(fine_nodes, tol=1e-6)
-    miss = np.flatnonzero(tet < 0)
-    if len(miss):
-        _, cand = loc._tree.query(fine_nodes[miss], k=1)
-        lam = loc._bary(fine_nodes[miss], cand)
-        lam = np.clip(lam, 0, None)
-        tet[miss], bary[miss] = cand, lam / lam.sum(axis=1, keepdims=True)
-    print(f"{len(fine_nodes)} fine nodes, {len(miss)} outside the coarse mesh (clipped to the nearest tet)")
-    w = p2_weights(bary)  # (n_fine, 10)
-    rows = np.repeat(np.arange(len(fine_nodes)), 10)
-    return sp.csr_matrix((w.ravel(), (rows, coarse.tets[tet].ravel())), shape=(len(fine_nodes), len(coarse.nodes)))
+from contracts.interpolate import PointLocator, interpolation_matrix  # noqa: E402
 
 
 def main() -> int:
@@ -57,7 +40,9 @@ def main() -> int:
 
     manifest = json.loads((args.sweep / "manifest.json").read_text())
     coarse, fine = load(args.sweep / manifest["mesh"]), load(args.mesh)
-    W = interpolation_matrix(coarse, fine.nodes)
+    outside = int((PointLocator(coarse.nodes, coarse.tets).locate(fine.nodes)[0] < 0).sum())
+    print(f"{len(fine.nodes)} fine nodes, {outside} outside the coarse mesh (clipped to the nearest tet)")
+    W = interpolation_matrix(coarse.nodes, coarse.tets, fine.nodes, nearest=True)  # (n_fine, n_coarse)
     keep_angles = manifest["angles_deg"][:: args.angle_stride]
     (args.out / "snapshots").mkdir(parents=True, exist_ok=True)
     for suffix in (".vtu", ".json"):

@@ -31,7 +31,7 @@ from fem_offline.linsolve import AMG_MIN_DOFS  # noqa: E402
 from fem_offline.problem import build_problem  # noqa: E402
 from fem_offline.scene import load_scene  # noqa: E402
 from fem_offline.solve import linear_modes  # noqa: E402
-from service.model import PointLocator, p2_weights  # noqa: E402
+from contracts.interpolate import PointLocator, interpolate  # noqa: E402
 from training.export import build_graph, folded_layers  # noqa: E402
 from training.fit import PAPER_TEST_CASES, training_set  # noqa: E402
 from training.network import train  # noqa: E402
@@ -88,7 +88,7 @@ def fe_mesh_rows(scene_path: Path) -> list[dict]:
     def at_probes(mesh, field):
         tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes, tol=1e-6)
         assert (tet >= 0).all()
-        return np.einsum("kn,knd->kd", p2_weights(bary), field[mesh.tets[tet]])
+        return interpolate(field[mesh.tets[tet]], bary)
 
     rows = []
     for beta in (-10.0, 0.0, 10.0):

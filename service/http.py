@@ -1,0 +1,114 @@
+"""HTTP plumbing: the JSON response class, the one error reply, content negotiation and the body limit."""
+
+from __future__ import annotations
+
+from typing import Iterable, Literal
+
+import orjson
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
+
+from .model import OutsideMesh
+
+BINARY = "application/octet-stream"
+ReplyFormat = Literal["json", "binary"]
+
+
+class OrjsonResponse(JSONResponse):
+    def render(self, content) -> bytes:
+        return orjson.dumps(content, option=orjson.OPT_SERIALIZE_NUMPY)
+
+
+def error_reply(status: int, errors: Iterable[tuple[str, str, str]], headers: dict | None = None) -> OrjsonResponse:
+    """Every error reply: {"detail": [{"field", "message", "type"}]} from (field, message, type) triples."""
+    return OrjsonResponse({"detail": [{"field": f, "message": m, "type": t} for f, m, t in errors]},
+                          status_code=status, headers=headers)
+
+
+class RequestProblem(HTTPException):
+    """An error reply naming the part of the request that is wrong (a field, the body or a header)."""
+
+    def __init__(self, status: int, *, field: str, message: str, type: str):
+        super().__init__(status, detail=message)
+        self.field, self.type = field, type
+
+
+def reply_format(accept: str | None) -> ReplyFormat:
+    """The reply's format from the Accept header."""
+    return "binary" if BINARY in (accept or "") else "json"
+
+
+def _hints(request: Request) -> dict[str, str]:
+    return request.app.state.field_hints
+
+
+async def invalid_request(request: Request, exc: RequestValidationError) -> OrjsonResponse:
+    """422 naming each bad field and what it accepts; never echoes the input (it may be NaN)."""
+    hints, errors = _hints(request), []
+    for err in exc.errors():
+        loc = [str(p) for p in err["loc"] if p != "body"]
+        if err["type"] == "json_invalid":
+            errors.append(("body", f"body: malformed JSON ({err.get('ctx', {}).get('error', 'cannot parse')})",
+                           err["type"]))
+            continue
+        field = ".".join(loc) or "body"
+        hint = hints.get(loc[0] if loc else "", "")
+        errors.append((field, f"{field}: {err['msg']}" + (f" ({hint})" if hint else ""), err["type"]))
+    if request.url.path == "/predict":
+        request.app.state.metrics.requests.labels("invalid", "json", "422").inc()
+    return error_reply(422, errors)
+
+
+async def http_problem(request: Request, exc: HTTPException) -> OrjsonResponse:
+    """Any HTTPException (ours, FastAPI's 400 for an unreadable body, 404, 405, 503) in the one error format."""
+    if isinstance(exc, RequestProblem):
+        error = (exc.field, exc.detail, exc.type)
+    else:
+        error = ("body" if exc.status_code == 400 else "request", str(exc.detail), f"http_{exc.status_code}")
+    return error_reply(exc.status_code, [error], headers=exc.headers)
+
+
+async def outside_mesh(request: Request, exc: OutsideMesh) -> OrjsonResponse:
+    """422 for a point that lies in no tet (the rectal lumen is a hole in the mesh)."""
+    field = f"points.{exc.index}"
+    request.app.state.metrics.requests.labels("points", "json", "422").inc()
+    return error_reply(422, [(field, f"{field}: {exc.point} is outside the mesh ({_hints(request)['points']})",
+                              "outside_mesh")])
+
+
+class BodyLimit:
+    """Reject request bodies over `max_bytes` with 413 before they are read into memory."""
+
+    def __init__(self, app, max_bytes: int):
+        self.app, self.max_bytes = app, max_bytes
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        length = dict(scope["headers"]).get(b"content-length")
+        if length is not None and length.isdigit() and int(length) > self.max_bytes:
+            return await self._too_large(scope, receive, send)
+        seen = 0
+
+        async def limited():
+            nonlocal seen
+            message = await receive()
+            seen += len(message.get("body", b""))
+            if seen > self.max_bytes:
+                raise _TooLarge
+            return message
+
+        try:
+            await self.app(scope, limited, send)
+        except _TooLarge:
+            await self._too_large(scope, receive, send)
+
+    async def _too_large(self, scope, receive, send):
+        reply = error_reply(413, [("body", f"request body over the limit of {self.max_bytes} bytes", "too_large")])
+        await reply(scope, receive, send)
+
+
+class _TooLarge(Exception):
+    pass

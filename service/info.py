@@ -1,0 +1,42 @@
+"""What the service shows of its model; `model_info` is the one place that reads the manifest's keys."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import orjson
+
+from .model import ModelFolder
+from .settings import Settings
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    name: str
+    displacement_mm: tuple[float, float]  # the training envelope
+    angle_deg: tuple[float, float]
+    regions: tuple[str, ...]  # names, sorted
+    bounds_mm: tuple[list[float], list[float]]  # node bounding box
+    summary: dict  # the GET /model reply
+    mesh_json: bytes  # the GET /mesh reply
+
+
+def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
+    """Name, envelope, regions and bounds of a loaded model folder, and the /model and /mesh replies."""
+    m = folder.manifest
+    nodes32 = folder.nodes.astype(np.float32)
+    lo, hi = folder.nodes.min(axis=0).tolist(), folder.nodes.max(axis=0).tolist()
+    summary = {
+        "name": m["name"], "scene": m["scene"], "mesh": m["mesh"], "envelope": m["envelope"], "regions": m["regions"],
+        "pca": {"rank": m["pca"]["rank"], "energy": m["pca"]["energy"]},
+        "network": {k: m["network"][k] for k in ("width", "depth", "activation")},
+        "metrics": {"table3": m["metrics"]["table3_summary"], "offgrid": m["metrics"]["offgrid_summary"],
+                    "angle_floor_mm": m["metrics"]["angle_floor_mm"]},
+        "limits": {"max_points": settings.max_points, "max_body_bytes": settings.max_body_bytes},
+    }
+    mesh_json = orjson.dumps({"nodes": nodes32, "tissues": m["mesh"]["tissues"], "surfaces": folder.surfaces},
+                             option=orjson.OPT_SERIALIZE_NUMPY)
+    return ModelInfo(name=m["name"], displacement_mm=tuple(m["envelope"]["displacement_mm"]),
+                     angle_deg=tuple(m["envelope"]["angle_deg"]), regions=tuple(sorted(m["regions"])),
+                     bounds_mm=(lo, hi), summary=summary, mesh_json=mesh_json)
