@@ -86,7 +86,7 @@ def fe_mesh_rows(scene_path: Path) -> list[dict]:
     probes = coarse.nodes[np.unique(coarse.tets[coarse.tissue == coarse.tissue_names.index("prostate")])]
 
     def at_probes(mesh, field):
-        tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes, tol=1e-6)
+        tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes)
         assert (tet >= 0).all()
         return interpolate(field[mesh.tets[tet]], bary)
 

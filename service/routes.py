@@ -7,12 +7,13 @@ from typing import Annotated
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.responses import PlainTextResponse, Response
+from starlette.concurrency import run_in_threadpool
 
 from .http import BINARY, OrjsonResponse, reply_format
 from .info import ModelInfo
 from .metrics import Metrics
 from .model import Predictor
-from .predict import Prediction, predict
+from .predict import predict
 from .schemas import ErrorReply, PredictReply, PredictRequestBase
 
 
@@ -68,8 +69,9 @@ def metrics(m: MetricsDep) -> Response:
     return Response(m.text(), media_type=m.content_type)
 
 
-def reply(prediction: Prediction, request: PredictRequestBase, *, fmt: str, model: str) -> Response:
-    """The prediction as JSON, or as raw little-endian float32 positions (count x 3)."""
+def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model: str) -> Response:
+    """The prediction for a request as JSON, or as raw little-endian float32 positions (count x 3)."""
+    prediction = predict(predictor, request)
     positions = prediction.positions
     if fmt == "binary":
         # float32 arrays are little-endian on every platform onnxruntime ships for; no copy to bytes
@@ -112,7 +114,9 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
         t0 = time.perf_counter()
         label = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
         fmt = reply_format(request.headers.get("accept"))
-        response = reply(predict(predictor, body), body, fmt=fmt, model=info.name)
+        # Decoding, locating points and serialising run in the thread pool: the event loop stays free
+        # for /healthz and other requests meanwhile (onnxruntime and numpy release the GIL).
+        response = await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
         m.latency.labels(label).observe(time.perf_counter() - t0)
         m.requests.labels(label, fmt, "200").inc()
         return response

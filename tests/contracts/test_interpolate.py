@@ -90,3 +90,34 @@ def test_interpolation_matrix_refuses_outside_points_unless_nearest():
         interpolation_matrix(nodes, tets, points)
     W = interpolation_matrix(nodes, tets, points, nearest=True)
     np.testing.assert_allclose(W @ quadratic(nodes), quadratic(np.array([[5, 5, 5], [5, 5, 10.0]])), atol=1e-9)
+
+
+def box_with_hole(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """box_mesh(n) less the tets whose centroid lies in the central 4 mm cube: a hole inside the bounding box."""
+    nodes, tets = box_mesh(n)
+    centroid = nodes[tets[:, :4]].mean(axis=1)
+    return nodes, tets[~np.all(np.abs(centroid - 5.0) < 2.0, axis=1)]
+
+
+@pytest.mark.parametrize("n", [4, 8, 16])
+def test_barycentric_tests_per_point_are_bounded_whatever_the_mesh_size(n):
+    """Points anywhere in the box, the hole included, cost a few barycentric tests each, not n_tets.
+
+    A point of a Kuhn mesh lies in the bounding boxes of at most 6 tets x 8 cubes around a corner.
+    """
+    nodes, tets = box_with_hole(n)
+    points = np.random.default_rng(n).uniform(0.0, 10.0, size=(2000, 3))
+    point, _ = PointLocator(nodes, tets).candidates(points)
+    per_point = np.bincount(point, minlength=len(points))
+    assert per_point.max() <= 48, (per_point.max(), len(tets))
+
+
+def test_a_point_within_tol_of_a_boundary_face_is_inside_and_beyond_it_is_not():
+    """Float32 rounding moves a boundary node off its face by ~1e-6 mm: still inside; 10 tol out is not."""
+    nodes, tets = box_mesh(3)
+    loc = PointLocator(nodes, tets)
+    on_face = np.array([[10.0, 2.0, 3.0], [10.0, 5.0, 5.0], [4.0, 0.0, 7.0]])
+    outward = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, -1.0, 0]])
+    inside, _ = loc.locate(on_face + 0.5 * loc.tol_mm * outward)
+    outside, _ = loc.locate(on_face + 10 * loc.tol_mm * outward)
+    assert (inside >= 0).all() and (outside == -1).all()
