@@ -17,7 +17,8 @@ class ModelInfo:
     displacement_mm: tuple[float, float]  # the training envelope
     angle_deg: tuple[float, float]
     regions: tuple[str, ...]  # names, sorted
-    bounds_mm: tuple[list[float], list[float]]  # node bounding box
+    # Node bounding box, mm, wide enough for the float32 nodes GET /mesh sends to be sent back as points.
+    bounds_mm: tuple[list[float], list[float]]
     summary: dict  # the GET /model reply
     mesh_json: bytes  # the GET /mesh reply
 
@@ -26,7 +27,8 @@ def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
     """Name, envelope, regions and bounds of a loaded model folder, and the /model and /mesh replies."""
     m = folder.manifest
     nodes32 = folder.nodes.astype(np.float32)
-    lo, hi = folder.nodes.min(axis=0).tolist(), folder.nodes.max(axis=0).tolist()
+    lo = np.minimum(folder.nodes.min(axis=0), nodes32.min(axis=0)).tolist()
+    hi = np.maximum(folder.nodes.max(axis=0), nodes32.max(axis=0)).tolist()
     summary = {
         "name": m["name"], "scene": m["scene"], "mesh": m["mesh"], "envelope": m["envelope"], "regions": m["regions"],
         "pca": {"rank": m["pca"]["rank"], "energy": m["pca"]["energy"]},
