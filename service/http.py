@@ -79,7 +79,11 @@ async def outside_mesh(request: Request, exc: OutsideMesh) -> OrjsonResponse:
 
 
 class BodyLimit:
-    """Reject request bodies over `max_bytes` with 413 before they are read into memory."""
+    """Read each request body up to `max_bytes`, then hand it on; over the limit, reply 413 at once.
+
+    Whether the size is announced (Content-Length) or not (chunked transfer), the body is counted
+    as it arrives and the app never sees an oversize one.
+    """
 
     def __init__(self, app, max_bytes: int):
         self.app, self.max_bytes = app, max_bytes
@@ -87,28 +91,29 @@ class BodyLimit:
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        length = dict(scope["headers"]).get(b"content-length")
-        if length is not None and length.isdigit() and int(length) > self.max_bytes:
+        length = dict(scope["headers"]).get(b"content-length", b"")
+        if length.isdigit() and int(length) > self.max_bytes:
             return await self._too_large(scope, receive, send)
-        seen = 0
-
-        async def limited():
-            nonlocal seen
+        chunks, size, more = [], 0, True
+        while more:
             message = await receive()
-            seen += len(message.get("body", b""))
-            if seen > self.max_bytes:
-                raise _TooLarge
-            return message
+            if message["type"] != "http.request":  # the client went away
+                return
+            chunks.append(message.get("body", b""))
+            size, more = size + len(chunks[-1]), message.get("more_body", False)
+            if size > self.max_bytes:
+                return await self._too_large(scope, receive, send)
+        body, replayed = b"".join(chunks), False
 
-        try:
-            await self.app(scope, limited, send)
-        except _TooLarge:
-            await self._too_large(scope, receive, send)
+        async def replay():
+            nonlocal replayed
+            if replayed:
+                return await receive()  # waits for the disconnect, as the server's receive would
+            replayed = True
+            return {"type": "http.request", "body": body, "more_body": False}
+
+        await self.app(scope, replay, send)
 
     async def _too_large(self, scope, receive, send):
         reply = error_reply(413, [("body", f"request body over the limit of {self.max_bytes} bytes", "too_large")])
         await reply(scope, receive, send)
-
-
-class _TooLarge(Exception):
-    pass
