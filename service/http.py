@@ -13,6 +13,7 @@ from starlette.exceptions import HTTPException
 from .model import OutsideMesh
 
 BINARY = "application/octet-stream"
+JSON = "application/json"
 ReplyFormat = Literal["json", "binary"]
 
 
@@ -35,9 +36,44 @@ class RequestProblem(HTTPException):
         self.field, self.type = field, type
 
 
+def _media_ranges(header: str) -> list[tuple[str, str, float]]:
+    """(type, subtype, q) of each media range of an Accept header, lower-cased; a bad q counts as 0."""
+    ranges = []
+    for item in header.split(","):
+        media, *params = [part.strip() for part in item.split(";")]
+        kind, _, sub = media.lower().partition("/")
+        if not kind or not sub:
+            continue
+        q = 1.0
+        for param in params:
+            name, _, value = param.partition("=")
+            if name.strip().lower() == "q":
+                try:
+                    q = min(max(float(value), 0.0), 1.0)
+                except ValueError:
+                    q = 0.0
+        ranges.append((kind, sub, q))
+    return ranges
+
+
+def _quality(ranges: list[tuple[str, str, float]], media_type: str) -> float:
+    """q of `media_type` under the most specific matching range (type/subtype over type/* over */*)."""
+    kind, sub = media_type.split("/")
+    specificity = {(kind, sub): 2, (kind, "*"): 1, ("*", "*"): 0}
+    matches = [(specificity[(k, s)], q) for k, s, q in ranges if (k, s) in specificity]
+    return max(matches)[1] if matches else 0.0
+
+
 def reply_format(accept: str | None) -> ReplyFormat:
-    """The reply's format from the Accept header."""
-    return "binary" if BINARY in (accept or "") else "json"
+    """The reply's format from the Accept header (RFC 9110 q-values): JSON unless binary has a strictly
+    higher q; 406 when neither is acceptable. No header, or an empty one, accepts anything."""
+    ranges = _media_ranges(accept or "*/*") or [("*", "*", 1.0)]
+    q_json, q_binary = _quality(ranges, JSON), _quality(ranges, BINARY)
+    if q_json == 0 and q_binary == 0:
+        raise RequestProblem(406, field="accept", type="not_acceptable", message=(
+            f"accept: {accept!r} accepts neither reply format; ask for {JSON} (the default) or {BINARY} "
+            "(raw float32 positions)"))
+    return "binary" if q_binary > q_json else "json"
 
 
 def _hints(request: Request) -> dict[str, str]:

@@ -88,8 +88,10 @@ def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model
 
 PREDICT_RESPONSES = {
     200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}},
-          "description": "JSON, or with `Accept: application/octet-stream` raw little-endian float32 (count x 3)"},
+          "description": "JSON, or raw little-endian float32 (count x 3) when the Accept header prefers "
+                         "`application/octet-stream` (a strictly higher q than JSON)"},
     400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
+    406: {"model": ErrorReply, "description": "the Accept header allows neither JSON nor application/octet-stream"},
     413: {"model": ErrorReply, "description": "request body too large"},
     422: {"model": ErrorReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"},
 }
