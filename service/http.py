@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from typing import Iterable, Literal
 
 import orjson
-from fastapi import Request
+from fastapi import HTTPException, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
-from starlette.exceptions import HTTPException
+from fastapi.responses import JSONResponse, Response
+from fastapi.routing import APIRoute
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .model import OutsideMesh
 
@@ -76,6 +78,51 @@ def reply_format(accept: str | None) -> ReplyFormat:
     return "binary" if q_binary > q_json else "json"
 
 
+def require_json(content_type: str | None) -> None:
+    """Refuse (415) a body that is not `application/json`, with at most a UTF-8 charset parameter."""
+    media, *params = [part.strip() for part in (content_type or "").split(";")]
+    utf8 = all(name.strip().lower() == "charset" and value.strip().strip('"').lower() in ("utf-8", "utf8")
+               for name, _, value in (param.partition("=") for param in params if param))
+    if media.lower() == JSON and utf8:
+        return
+    sent = f"{content_type!r} is not accepted" if content_type else "no Content-Type header was sent"
+    raise RequestProblem(415, field="content-type", type="unsupported_media_type",
+                         message=f"content-type: {sent}; send the body as {JSON} (charset utf-8, if given)")
+
+
+def parse_json(body: bytes):
+    """The body as JSON: orjson, or the standard parser where orjson refuses (NaN and Infinity literals,
+    which the schema then refuses as not finite; the error message for malformed JSON)."""
+    try:
+        return orjson.loads(body)
+    except orjson.JSONDecodeError:
+        pass
+    try:
+        return json.loads(body)
+    except UnicodeDecodeError:
+        raise RequestProblem(400, field="body", type="not_utf8", message="body: not UTF-8 text, as JSON must be") from None
+
+
+class _JsonRequest(Request):
+    async def json(self):
+        if not hasattr(self, "_json"):
+            self._json = parse_json(await self.body())
+        return self._json
+
+
+class JsonBodyRoute(APIRoute):
+    """A route whose body must be application/json (415 otherwise, before it is read), parsed by orjson."""
+
+    def get_route_handler(self):
+        handler = super().get_route_handler()
+
+        async def json_body_handler(request: Request) -> Response:
+            require_json(request.headers.get("content-type"))
+            return await handler(_JsonRequest(request.scope, request.receive))
+
+        return json_body_handler
+
+
 def _hints(request: Request) -> dict[str, str]:
     return request.app.state.field_hints
 
@@ -97,7 +144,7 @@ async def invalid_request(request: Request, exc: RequestValidationError) -> Orjs
     return error_reply(422, errors)
 
 
-async def http_problem(request: Request, exc: HTTPException) -> OrjsonResponse:
+async def http_problem(request: Request, exc: StarletteHTTPException) -> OrjsonResponse:
     """Any HTTPException (ours, FastAPI's 400 for an unreadable body, 404, 405, 503) in the one error format."""
     if isinstance(exc, RequestProblem):
         error = (exc.field, exc.detail, exc.type)

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.responses import PlainTextResponse, Response
 from starlette.concurrency import run_in_threadpool
 
-from .http import BINARY, OrjsonResponse, reply_format
+from .http import BINARY, JsonBodyRoute, OrjsonResponse, reply_format
 from .info import ModelInfo
 from .metrics import Metrics
 from .model import Predictor
@@ -93,6 +93,7 @@ PREDICT_RESPONSES = {
     400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
     406: {"model": ErrorReply, "description": "the Accept header allows neither JSON nor application/octet-stream"},
     413: {"model": ErrorReply, "description": "request body too large"},
+    415: {"model": ErrorReply, "description": "the body is not sent as application/json"},
     422: {"model": ErrorReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"},
 }
 
@@ -103,7 +104,7 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
     A closure because FastAPI reads the body's type from the handler's annotation, and that type
     (its ranges, its region enum) exists only once the model folder is read.
     """
-    predict_routes = APIRouter()
+    predict_routes = APIRouter(route_class=JsonBodyRoute)
 
     @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
     async def predict_endpoint(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
