@@ -11,7 +11,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import http
 from .info import model_info
-from .metrics import Metrics
+from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, load_model_folder
 from .routes import predict_router, router
 from .schemas import field_hints, predict_request_model
@@ -48,6 +48,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = Metrics()
     app.state.field_hints = field_hints(info, settings.max_points)
     app.add_middleware(http.BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(PredictMetrics, metrics=app.state.metrics)  # outside BodyLimit: counts its 413s too
     app.add_exception_handler(RequestValidationError, http.invalid_request)
     app.add_exception_handler(StarletteHTTPException, http.http_problem)
     app.add_exception_handler(OutsideMesh, http.outside_mesh)

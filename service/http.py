@@ -139,8 +139,6 @@ async def invalid_request(request: Request, exc: RequestValidationError) -> Orjs
         field = ".".join(loc) or "body"
         hint = hints.get(loc[0] if loc else "", "")
         errors.append((field, f"{field}: {err['msg']}" + (f" ({hint})" if hint else ""), err["type"]))
-    if request.url.path == "/predict":
-        request.app.state.metrics.requests.labels("invalid", "json", "422").inc()
     return error_reply(422, errors)
 
 
@@ -156,7 +154,6 @@ async def http_problem(request: Request, exc: StarletteHTTPException) -> OrjsonR
 async def outside_mesh(request: Request, exc: OutsideMesh) -> OrjsonResponse:
     """422 for a point that lies in no tet (the rectal lumen is a hole in the mesh)."""
     field = f"points.{exc.index}"
-    request.app.state.metrics.requests.labels("points", "json", "422").inc()
     return error_reply(422, [(field, f"{field}: {exc.point} is outside the mesh ({_hints(request)['points']})",
                               "outside_mesh")])
 

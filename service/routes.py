@@ -1,7 +1,6 @@
 """The endpoints: thin handlers over `predict` and the app's state, reached through typed dependencies."""
 
 # No `from __future__ import annotations`: FastAPI must see the request model built in predict_router.
-import time
 from typing import Annotated
 
 import numpy as np
@@ -11,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 
 from .http import BINARY, JsonBodyRoute, OrjsonResponse, reply_format
 from .info import ModelInfo
-from .metrics import Metrics
+from .metrics import FORMAT, TARGET, Metrics
 from .model import Predictor
 from .predict import predict
 from .schemas import ErrorReply, PredictReply, PredictRequestBase
@@ -108,20 +107,18 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
 
     @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
     async def predict_endpoint(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
-                               info: InfoDep, m: MetricsDep):
+                               info: InfoDep):
         """Deformed positions for one guide displacement and angle.
 
         All nodes by default, the nodes of one `region`, or arbitrary `points` (reference
         positions, mm) interpolated inside their tet. Only what is asked for is decoded.
         """
-        t0 = time.perf_counter()
-        label = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
+        target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
+        setattr(request.state, TARGET, target)  # for the metrics middleware, which counts the reply
         fmt = reply_format(request.headers.get("accept"))
+        setattr(request.state, FORMAT, fmt)
         # Decoding, locating points and serialising run in the thread pool: the event loop stays free
         # for /healthz and other requests meanwhile (onnxruntime and numpy release the GIL).
-        response = await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
-        m.latency.labels(label).observe(time.perf_counter() - t0)
-        m.requests.labels(label, fmt, "200").inc()
-        return response
+        return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
 
     return predict_routes
