@@ -10,6 +10,7 @@ from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import http
+from .docs import add_offline_docs
 from .info import model_info
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, load_model_folder
@@ -42,6 +43,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description="Deformed prostate and surrounding tissue for a needle-guide displacement and angle, "
         f"decoded from the PCA + MLP surrogate `{info.name}` in milliseconds.",
         lifespan=lifespan,
+        docs_url=None,  # add_offline_docs serves /docs and /redoc without a CDN
+        redoc_url=None,
     )
     app.state.predictor = None
     app.state.info = info
@@ -54,6 +57,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(OutsideMesh, http.outside_mesh)
     app.include_router(predict_router(predict_request_model(info, settings.max_points)))
     app.include_router(router)
+    add_offline_docs(app)
     return app
 
 
