@@ -17,15 +17,16 @@ from .tet10 import p2_weights
 # coordinates up to 1000 mm moves a point by at most 6e-5 mm, so a node sent as float32 is found.
 TOL_MM = 1e-4
 # Grid cells per largest tet bounding box of a size class, along each axis: finer cells list fewer
-# tets a point need not test, at the cost of more (cell, tet) entries (about 40 per tet at 4).
-_CELLS = 4
+# tets a point need not test, at the cost of more (cell, tet) entries: about 21 per tet of the
+# default mesh at 3 (38 at 4), at most (3 + 1)^3.
+_CELLS = 3
 
 
 class PointLocator:
     """Find the tet containing each point: a hashed grid per tet size class, then a barycentric test.
 
     Tets are sorted into size classes (bounding-box extent within a factor 2). Each class has a
-    uniform grid whose cells, a quarter of the class's largest extent, list the tets whose bounding
+    uniform grid whose cells, a third of the class's largest extent, list the tets whose bounding
     box (widened by tol_mm) overlaps them; only occupied cells are stored, sorted by key. A point
     looks up its cell in each class (a binary search), keeps the listed tets whose box holds it and
     tests those barycentrically. That is O(classes * log cells) plus a candidate count set by the
@@ -61,10 +62,11 @@ class PointLocator:
             inside = np.all(a + offset <= b, axis=1)
             keys.append(self._key(a[inside] + offset, shape))
             owner.append(ids[inside])
-        keys, owner = np.concatenate(keys), np.concatenate(owner)
-        order = np.argsort(keys, kind="stable")
-        cells, start = np.unique(keys[order], return_index=True)
-        return h, shape, cells, np.append(start, len(keys)), owner[order].astype(np.int32)
+        keys, owner = np.concatenate(keys), np.concatenate(owner).astype(np.int32)
+        order = np.argsort(keys)
+        keys, owner = keys[order], owner[order]
+        start = np.flatnonzero(np.diff(keys, prepend=-1))  # where each occupied cell's list begins
+        return h, shape, keys[start], np.append(start, len(keys)), owner
 
     @staticmethod
     def _key(cell: np.ndarray, shape: np.ndarray) -> np.ndarray:
