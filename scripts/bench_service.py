@@ -11,12 +11,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import socket
-import subprocess
 import sys
 import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -24,12 +20,6 @@ import numpy as np
 from service import loadtest
 from service.model import Predictor, read_model_folder
 from service.settings import DEFAULT_MODEL
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _direct_ms(predictor: Predictor, nodes, n: int = 2000) -> np.ndarray:
@@ -54,20 +44,7 @@ def main() -> int:
     ap.add_argument("--json-out", type=Path, help="also write the figures as JSON")
     args = ap.parse_args()
 
-    port = _free_port()
-    url = f"http://127.0.0.1:{port}"
-    server = subprocess.Popen([sys.executable, "-m", "service", "--model", str(args.model), "--port", str(port),
-                               "--log-level", "warning", "--max-body-bytes", "1048576"],
-                              env={**os.environ, "OMP_NUM_THREADS": "1"})
-    try:
-        for _ in range(120):
-            try:
-                urllib.request.urlopen(f"{url}/readyz", timeout=1)
-                break
-            except OSError:
-                time.sleep(0.25)
-        else:
-            raise SystemExit("error: the service did not become ready in 30 s")
+    with loadtest.local_service("--model", str(args.model), "--max-body-bytes", "1048576") as url:
         folder = read_model_folder(args.model)
         predictor = Predictor(folder)
         markers = folder.regions["markers"]
@@ -79,9 +56,6 @@ def main() -> int:
             key = region or "full"
             rows.append({"region": key, "format": fmt, "concurrency": conc, **s,
                          "direct_ort_p50_ms": float(direct[key]), "ratio_p50": s["p50_ms"] / direct[key]})
-    finally:
-        server.terminate()
-        server.wait(10)
 
     n = len(folder.nodes)
     print(f"model {folder.manifest['name']}: {n} nodes, rank {folder.manifest['pca']['rank']}; "

@@ -1,7 +1,7 @@
 """Snapshots on the paper-scale mesh, interpolated from the default sweep, to time a paper-scale decoder.
 
-    python -m fem_offline mesh --scene fem_offline/scenes/paper_scale.toml --out runs/paper/mesh.vtu
-    python scripts/paper_scale_snapshots.py --sweep runs/default --mesh runs/paper/mesh.vtu \
+    python -m fem_offline mesh --scene fem_offline/scenes/paper_scale.toml --out runs/paper/mesh.npz
+    python scripts/paper_scale_snapshots.py --sweep runs/default --mesh runs/paper/mesh.npz \
         --out runs/paper/sweep_interp --angle-stride 2
     python -m training fit --snapshots runs/paper/sweep_interp --out runs/paper/model --rank 32 \
         --test-case 7.75/-4 --test-case 2.5/2
@@ -11,71 +11,56 @@ interpolated with the quadratic shape functions of the coarse tet that contains 
 are FE-quality only to the coarse mesh's accuracy: this folder exists to time decoding
 (latency depends on node count and rank, not on the values), not to measure accuracy.
 Fine nodes just outside the coarse mesh (its curved surfaces are chords of the fine ones)
-take the nearest candidate tet, clipped.
+take the value at their projection onto the nearest coarse tet (`interpolation_matrix(..., nearest=True)`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from fem_offline.io import atomic_savez  # noqa: E402
-from fem_offline.mesh import load  # noqa: E402
-from service.model import PointLocator, p2_weights  # noqa: E402
-
-
-def interpolation_matrix(coarse, fine_nodes: np.ndarray) -> sp.csr_matrix:
-    """(n_fine, n_coarse) P2 interpolation weights."""
-    loc = PointLocator(coarse.nodes, coarse.tets)
-    tet, bary = loc.locate(fine_nodes, tol=1e-6)
-    miss = np.flatnonzero(tet < 0)
-    if len(miss):
-        _, cand = loc._tree.query(fine_nodes[miss], k=1)
-        lam = loc._bary(fine_nodes[miss], cand)
-        lam = np.clip(lam, 0, None)
-        tet[miss], bary[miss] = cand, lam / lam.sum(axis=1, keepdims=True)
-    print(f"{len(fine_nodes)} fine nodes, {len(miss)} outside the coarse mesh (clipped to the nearest tet)")
-    w = p2_weights(bary)  # (n_fine, 10)
-    rows = np.repeat(np.arange(len(fine_nodes)), 10)
-    return sp.csr_matrix((w.ravel(), (rows, coarse.tets[tet].ravel())), shape=(len(fine_nodes), len(coarse.nodes)))
+from contracts import sweep as folder
+from contracts.files import sha256
+from contracts.interpolate import PointLocator, interpolation_matrix
+from contracts.mesh import write_mesh
+from fem_offline.mesh import load
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
-    ap.add_argument("--mesh", type=Path, required=True)
+    ap.add_argument("--mesh", type=Path, required=True, help="the fine mesh (.npz, or any format fem_offline mesh writes)")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--angle-stride", type=int, default=2, help="keep every n-th angle (default 2: 11 x 40 = 440)")
     args = ap.parse_args()
 
-    manifest = json.loads((args.sweep / "manifest.json").read_text())
-    coarse, fine = load(args.sweep / manifest["mesh"]), load(args.mesh)
-    W = interpolation_matrix(coarse, fine.nodes)
-    keep_angles = manifest["angles_deg"][:: args.angle_stride]
-    (args.out / "snapshots").mkdir(parents=True, exist_ok=True)
-    for suffix in (".vtu", ".json"):
-        shutil.copy(args.mesh.with_suffix(suffix), args.out / f"mesh{suffix}")
-    files = sorted((args.sweep / "snapshots").glob("*.npz"))
-    n = 0
-    for f in files:
-        with np.load(f) as z:
-            if float(z["angle_deg"]) not in keep_angles:
-                continue
-            atomic_savez(args.out / "snapshots" / f.name, displacement=W @ z["displacement"],
-                         displacement_mm=z["displacement_mm"], angle_deg=z["angle_deg"])
-            n += 1
-    out_manifest = {**manifest, "scene_name": "paper_scale_interpolated", "mesh": "mesh.vtu", "n_expected": n,
-                    "n_done": n, "n_nodes": len(fine.nodes), "n_tets": len(fine.tets), "angles_deg": keep_angles,
-                    "interpolated_from": str(args.sweep)}
-    (args.out / "manifest.json").write_text(json.dumps(out_manifest, indent=2))
-    print(f"{args.out}: {n} snapshots on {len(fine.nodes)} nodes, {len(fine.tets)} tets")
+    source = folder.read_sweep(args.sweep)
+    coarse, fine = source.mesh, load(args.mesh)
+    outside = int((PointLocator(coarse.nodes, coarse.tets).locate(fine.nodes)[0] < 0).sum())
+    print(f"{len(fine.nodes)} fine nodes, {outside} outside the coarse mesh (clipped to the nearest tet)")
+    W = interpolation_matrix(coarse.nodes, coarse.tets, fine.nodes, nearest=True)  # (n_fine, n_coarse)
+    m = source.manifest
+    angles = m.grid.angles_deg[:: args.angle_stride]
+    write_mesh(args.out / folder.MESH_FILE, fine)
+    rows = []
+    for i, angle in enumerate(angles):
+        for j, d in enumerate(m.grid.displacements_mm):
+            k = np.flatnonzero((source.inputs[:, 0] == d) & (source.inputs[:, 1] == angle))[0]
+            src = m.snapshots[k]
+            name = folder.snapshot_file(i, j)
+            record = folder.CaseRecord(newton_iterations=src.newton_iterations, residual=src.residual,
+                                       min_det_f=src.min_det_f, seconds=src.seconds)
+            folder.write_case(args.out / name, W @ source.displacement[k], displacement_mm=d, angle_deg=angle, record=record)
+            rows.append(folder.snapshot_record(args.out, name))
+    grid = folder.Grid(displacements_mm=m.grid.displacements_mm, angles_deg=angles)
+    folder.write_manifest(args.out, m.model_copy(update={
+        "scene_name": "paper_scale_interpolated", "mesh_sha256": sha256(args.out / folder.MESH_FILE),
+        "n_nodes": len(fine.nodes), "n_tets": len(fine.tets), "grid": grid, "envelope": grid.envelope,
+        "n_expected": len(rows), "n_done": len(rows), "n_mirrored": 0, "errors": [], "snapshots": rows}))
+    print(f"{args.out}: {len(rows)} snapshots on {len(fine.nodes)} nodes, {len(fine.tets)} tets")
     return 0
 
 

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.interpolate import PointLocator, interpolate
 from contracts.model import onnx_session
-from fem_offline.meshing import mesh_for_scene
+from fem_offline.linear import linear_modes, superpose
 from fem_offline.linsolve import AMG_MIN_DOFS
+from fem_offline.meshing import mesh_for_scene
 from fem_offline.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.linear import linear_modes, superpose
-from service.model import PointLocator, p2_weights
 from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, training_set
 from training.snapshots import read_offgrid, read_sweep, snapshots_of
 
@@ -80,9 +80,9 @@ def fe_mesh_rows(scene_path: Path) -> list[dict]:
     probes = coarse.nodes[np.unique(coarse.tets[coarse.tissue == coarse.tissue_names.index("prostate")])]
 
     def at_probes(mesh, field):
-        tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes, tol=1e-6)
+        tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes)
         assert (tet >= 0).all()
-        return np.einsum("kn,knd->kd", p2_weights(bary), field[mesh.tets[tet]])
+        return interpolate(field[mesh.tets[tet]], bary)
 
     rows = []
     for beta in (-10.0, 0.0, 10.0):

@@ -14,11 +14,16 @@ import argparse
 import http.client
 import ipaddress
 import json
+import os
 import socket
+import subprocess
 import sys
 import threading
 import time
+import urllib.request
+from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from urllib.parse import urlparse
 
 import numpy as np
@@ -51,6 +56,35 @@ def loopback(url: str) -> tuple[str, int]:
     if parsed.scheme != "http" or not ok:
         raise SystemExit(f"error: --url must be http:// on a loopback address (127.0.0.1, localhost, ::1), got {url!r}")
     return host, port
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def local_service(*flags: str, cwd: Path | None = None, wait_s: float = 30.0):
+    """Run `python -m service *flags` on a free loopback port for the block; yield its URL once /readyz answers."""
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    server = subprocess.Popen([sys.executable, "-m", "service", *flags, "--port", str(port), "--log-level", "warning"],
+                              cwd=cwd, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                urllib.request.urlopen(f"{url}/readyz", timeout=1)
+                break
+            except OSError:
+                if time.monotonic() > deadline or server.poll() is not None:
+                    raise SystemExit(f"error: the service did not become ready in {wait_s:.0f} s")
+                time.sleep(0.25)
+        yield url
+    finally:
+        server.terminate()
+        server.wait(10)
 
 
 def _bodies(envelope: dict, region: str | None, n: int, seed: int) -> list[bytes]:

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
-from contracts.model import ModelManifest
+from .info import ModelInfo
 
 
 def _coordinate(lo: float, hi: float, axis: str):
@@ -15,26 +15,32 @@ def _coordinate(lo: float, hi: float, axis: str):
     return Annotated[float, Field(strict=True, allow_inf_nan=False, ge=lo, le=hi, description=f"{axis}, mm")]
 
 
-class _PredictBase(BaseModel):
+class PredictRequestBase(BaseModel):
+    """The fields of every PredictRequest; `predict_request_model` narrows them to the loaded model."""
+
     # region and points exclude each other; the schema says so, and so does the 422
     model_config = ConfigDict(extra="forbid", json_schema_extra={"not": {"required": ["region", "points"]}})
 
+    displacement_mm: float
+    angle_deg: float
+    region: Optional[Enum] = None
+    points: Optional[list[tuple[float, float, float]]] = None
+
     @model_validator(mode="after")
     def _one_target(self):
-        if getattr(self, "region", None) is not None and getattr(self, "points", None) is not None:
+        if self.region is not None and self.points is not None:
             raise ValueError("give either region or points, not both")
         return self
 
 
-def predict_request_model(manifest: ModelManifest, max_points: int, bounds_mm: tuple[list, list]) -> type[BaseModel]:
+def predict_request_model(info: ModelInfo, max_points: int) -> type[PredictRequestBase]:
     """A pydantic model whose ranges are the model's training envelope, so /docs and errors state them."""
-    (d_lo, d_hi), (a_lo, a_hi) = manifest.envelope.displacement_mm, manifest.envelope.angle_deg
-    lo, hi = bounds_mm
+    (d_lo, d_hi), (a_lo, a_hi), (lo, hi) = info.displacement_mm, info.angle_deg, info.bounds_mm
     Point = tuple[_coordinate(lo[0], hi[0], "x"), _coordinate(lo[1], hi[1], "y"), _coordinate(lo[2], hi[2], "z")]
-    Region = Enum("Region", {name: name for name in sorted(manifest.regions)}, type=str)
+    Region = Enum("Region", {name: name for name in info.regions}, type=str)
     return create_model(
         "PredictRequest",
-        __base__=_PredictBase,
+        __base__=PredictRequestBase,
         displacement_mm=(float, Field(ge=d_lo, le=d_hi, strict=True, allow_inf_nan=False,
                                       description=f"guide displacement into the rectal wall, {d_lo}..{d_hi} mm",
                                       examples=[5.0])),
@@ -60,14 +66,22 @@ class PredictReply(BaseModel):
 
 
 class FieldError(BaseModel):
-    field: str = Field(description="the offending field, dotted (points.3.0), or body")
+    field: str = Field(description="the offending field, dotted (points.3.0), body, or a header (content-type)")
     message: str = Field(description="what is wrong and what the field accepts")
     type: str
 
 
-class ValidationReply(BaseModel):
+class ErrorReply(BaseModel):
     detail: list[FieldError]
 
 
-class MessageReply(BaseModel):
-    detail: str
+def field_hints(info: ModelInfo, max_points: int) -> dict[str, str]:
+    """What each request field accepts, in words, for the 422 messages."""
+    (d_lo, d_hi), (a_lo, a_hi), (lo, hi) = info.displacement_mm, info.angle_deg, info.bounds_mm
+    return {
+        "displacement_mm": f"a finite number from {d_lo} to {d_hi} mm, the model's training envelope",
+        "angle_deg": f"a finite number from {a_lo} to {a_hi} degrees, the model's training envelope",
+        "region": "one of " + ", ".join(info.regions),
+        "points": f"1 to {max_points} points, each [x, y, z] in mm inside the mesh, within "
+                  f"{[round(v, 2) for v in lo]} to {[round(v, 2) for v in hi]}",
+    }

@@ -5,7 +5,7 @@ import pytest
 
 from service.model import Predictor, read_model_folder
 
-from conftest import DEFAULT
+from .conftest import DEFAULT
 
 CORNERS_AND_EDGES = [(d, a) for d in (0.0, 5.0, 10.0) for a in (-10.0, 0.0, 10.0)]
 

@@ -1,23 +1,11 @@
-"""Point location and quadratic interpolation inside tets."""
+"""Point location on the committed default model's mesh."""
 
 import numpy as np
 
-from service.model import PointLocator, read_model_folder, p2_weights
+from contracts.interpolate import PointLocator
+from service.model import read_model_folder
 
-from conftest import DEFAULT
-
-
-def test_p2_weights_partition_unity_and_reproduce_quadratics():
-    """sum N_i = 1, and a quadratic f(x) sampled at the 10 nodes is interpolated exactly."""
-    rng = np.random.default_rng(0)
-    corners = rng.normal(size=(4, 3))
-    edges = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
-    nodes = np.concatenate([corners, corners[edges].mean(axis=1)])
-    f = lambda p: 1 + p[..., 0] - 2 * p[..., 1] * p[..., 2] + 3 * p[..., 0] ** 2  # noqa: E731
-    bary = rng.dirichlet(np.ones(4), size=20)
-    w = p2_weights(bary)
-    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-14)
-    np.testing.assert_allclose(w @ f(nodes), f(bary @ corners), atol=1e-12)
+from .conftest import DEFAULT
 
 
 def test_locator_finds_the_containing_tet_and_rejects_outside_points():

@@ -128,3 +128,55 @@ def test_docs_and_schema_state_the_ranges(client):
     req = schema["components"]["schemas"]["PredictRequest"]["properties"]
     assert req["displacement_mm"]["minimum"] == 0.0 and req["displacement_mm"]["maximum"] == 10.0
     assert req["angle_deg"]["minimum"] == -10.0 and client.get("/docs").status_code == 200
+
+
+def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch):
+    """The decode runs off the event loop: with one predict held inside predict(), /healthz still answers."""
+    import asyncio
+    import threading
+
+    import httpx
+
+    from service import routes
+    from service.app import create_app
+
+    entered, release = threading.Event(), threading.Event()
+    real_predict = routes.predict
+
+    def held_predict(predictor, request):
+        entered.set()
+        release.wait(3)
+        return real_predict(predictor, request)
+
+    monkeypatch.setattr(routes, "predict", held_predict)
+    app = create_app(settings)
+
+    async def scenario():
+        async with app.router.lifespan_context(app), httpx.AsyncClient(
+                transport=httpx.ASGITransport(app=app), base_url="http://service") as client:
+            predicting = asyncio.create_task(client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0}))
+            await asyncio.to_thread(entered.wait, 3)
+            health = await client.get("/healthz")
+            in_flight = not predicting.done()
+            release.set()
+            return health.status_code, in_flight, (await predicting).status_code
+
+    assert asyncio.run(scenario()) == (200, True, 200)
+
+
+def test_every_mesh_node_sent_back_as_a_point_is_accepted(client, folder):
+    """GET /mesh's float32 nodes, posted back as points, are inside and give their own nodal displacement."""
+    nodes = np.asarray(client.get("/mesh").json()["nodes"])  # float32 values
+    r = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0},
+                    headers={"accept": "application/octet-stream"})
+    nodal = np.frombuffer(r.content, dtype="<f4").reshape(-1, 3) - nodes.astype(np.float32)
+    max_points = client.get("/model").json()["limits"]["max_points"]
+    refused, got = [], []
+    for start in range(0, len(nodes), max_points):
+        r = _predict(client, points=nodes[start:start + max_points].tolist())
+        if r.status_code != 200:
+            refused.append(r.json()["detail"][0]["message"])
+            continue
+        got.append(np.asarray(r.json()["displacements"]))
+    assert not refused, f"{len(refused)} chunks refused, first: {refused[0]}"
+    np.testing.assert_allclose(np.concatenate(got), nodal, atol=1e-4)

@@ -1,0 +1,126 @@
+"""The endpoints: thin handlers over `predict` and the app's state, reached through typed dependencies."""
+
+# No `from __future__ import annotations`: FastAPI must see the request model built in predict_router.
+from typing import Annotated
+
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.responses import PlainTextResponse, Response
+from starlette.concurrency import run_in_threadpool
+
+from .http import BINARY, JsonBodyRoute, OrjsonResponse, reply_format
+from .info import ModelInfo
+from .metrics import FORMAT, TARGET, Metrics
+from .model import Predictor
+from .predict import predict
+from .schemas import ErrorReply, PredictReply, PredictRequestBase
+
+
+async def get_predictor(request: Request) -> Predictor:
+    predictor = request.app.state.predictor
+    if predictor is None:
+        raise HTTPException(503, detail="model not loaded")
+    return predictor
+
+
+async def get_info(request: Request) -> ModelInfo:
+    return request.app.state.info
+
+
+async def get_metrics(request: Request) -> Metrics:
+    return request.app.state.metrics
+
+
+# async: FastAPI would run a plain def dependency in the thread pool, a hop for a dict lookup
+PredictorDep = Annotated[Predictor, Depends(get_predictor)]
+InfoDep = Annotated[ModelInfo, Depends(get_info)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+
+# The handlers below do no blocking work: async, so they run on the event loop without a thread hop.
+router = APIRouter()
+
+
+@router.get("/model")
+async def model_summary(info: InfoDep) -> dict:
+    """The loaded model: input envelope, regions with node counts, accuracy measured at export."""
+    return info.summary
+
+
+@router.get("/mesh")
+async def mesh(info: InfoDep) -> Response:
+    """Reference mesh for drawing: node positions (mm) and each tissue's surface triangles (node ids)."""
+    return Response(info.mesh_json, media_type="application/json")
+
+
+@router.get("/healthz")
+async def healthz() -> dict:
+    """The process is up."""
+    return {"status": "ok"}
+
+
+@router.get("/readyz")
+async def readyz(predictor: PredictorDep, info: InfoDep) -> dict:
+    """The model is loaded and answers."""
+    return {"status": "ready", "model": info.name}
+
+
+@router.get("/metrics", response_class=PlainTextResponse)
+async def metrics(m: MetricsDep) -> Response:
+    """Prometheus text: request counts by region, format and status; latency histogram per region."""
+    return Response(m.text(), media_type=m.content_type)
+
+
+def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model: str) -> Response:
+    """The prediction for a request as JSON, or as raw little-endian float32 positions (count x 3)."""
+    prediction = predict(predictor, request)
+    positions = prediction.positions
+    if fmt == "binary":
+        # float32 arrays are little-endian on every platform onnxruntime ships for; no copy to bytes
+        return Response(memoryview(np.ascontiguousarray(positions, dtype="<f4")), media_type=BINARY, headers={
+            "X-Count": str(len(positions)), "X-Layout": "float32 little-endian, count x 3 (x, y, z) mm, deformed positions"})
+    content = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
+               "region": prediction.region, "count": len(positions), "positions": positions}
+    if prediction.displacements is not None:
+        content["displacements"] = prediction.displacements
+    if prediction.node_ids is not None:
+        content["node_ids"] = prediction.node_ids
+    return OrjsonResponse(content)
+
+
+PREDICT_RESPONSES = {
+    200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}},
+          "description": "JSON, or raw little-endian float32 (count x 3) when the Accept header prefers "
+                         "`application/octet-stream` (a strictly higher q than JSON)"},
+    400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
+    406: {"model": ErrorReply, "description": "the Accept header allows neither JSON nor application/octet-stream"},
+    413: {"model": ErrorReply, "description": "request body too large"},
+    415: {"model": ErrorReply, "description": "the body is not sent as application/json"},
+    422: {"model": ErrorReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"},
+}
+
+
+def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
+    """POST /predict for a request model built from the loaded model's manifest.
+
+    A closure because FastAPI reads the body's type from the handler's annotation, and that type
+    (its ranges, its region enum) exists only once the model folder is read.
+    """
+    predict_routes = APIRouter(route_class=JsonBodyRoute)
+
+    @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
+    async def predict_endpoint(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
+                               info: InfoDep):
+        """Deformed positions for one guide displacement and angle.
+
+        All nodes by default, the nodes of one `region`, or arbitrary `points` (reference
+        positions, mm) interpolated inside their tet. Only what is asked for is decoded.
+        """
+        target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
+        setattr(request.state, TARGET, target)  # for the metrics middleware, which counts the reply
+        fmt = reply_format(request.headers.get("accept"))
+        setattr(request.state, FORMAT, fmt)
+        # Decoding, locating points and serialising run in the thread pool: the event loop stays free
+        # for /healthz and other requests meanwhile (onnxruntime and numpy release the GIL).
+        return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
+
+    return predict_routes

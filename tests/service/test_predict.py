@@ -1,0 +1,37 @@
+"""The pure predict(): what each kind of request decodes, without HTTP."""
+
+import numpy as np
+import pytest
+
+from service.info import model_info
+from service.model import OutsideMesh, Predictor, read_model_folder
+from service.predict import predict
+from service.schemas import predict_request_model
+
+
+@pytest.fixture(scope="module")
+def predictor(settings):
+    return Predictor(read_model_folder(settings.model))
+
+
+@pytest.fixture(scope="module")
+def request_model(settings, predictor):
+    return predict_request_model(model_info(predictor.folder, settings), settings.max_points)
+
+
+def test_region_gives_its_nodes_rows_of_the_full_decode(predictor, request_model):
+    full = predict(predictor, request_model(displacement_mm=5.0, angle_deg=2.0))
+    markers = predict(predictor, request_model(displacement_mm=5.0, angle_deg=2.0, region="markers"))
+    ids = predictor.folder.regions["markers"]
+    assert full.node_ids is None and full.displacements is None and markers.region == "markers"
+    np.testing.assert_array_equal(markers.node_ids, ids)
+    np.testing.assert_array_equal(markers.positions, full.positions[ids])
+    np.testing.assert_allclose(markers.displacements, full.positions[ids] - predictor.nodes32[ids], atol=1e-5)
+
+
+def test_a_point_outside_the_mesh_raises_naming_the_first_one(predictor, request_model):
+    lumen = [0.0, -21.0, 40.0]  # inside the bounding box, in the rectal lumen: no tet
+    body = request_model(displacement_mm=5.0, angle_deg=2.0, points=[[0.0, 0.0, 35.0], lumen, lumen])
+    with pytest.raises(OutsideMesh) as err:
+        predict(predictor, body)
+    assert err.value.index == 1 and err.value.point == lumen
