@@ -192,6 +192,7 @@ def write_model_folder(out: str | Path, *, onnx_bytes: bytes, mesh: TetMesh, man
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:
+        tmp.chmod(0o755)  # mkdtemp makes it private; a served model folder is read by the service's user
         (tmp / "model.onnx").write_bytes(onnx_bytes)
         counts = _write_mesh(mesh, tmp / "mesh.npz")
         (tmp / "report.md").write_text(report)

@@ -11,7 +11,8 @@ from service.model import read_model_folder
 def test_bounds_hold_the_float32_nodes_that_get_mesh_sends(settings):
     """GET /mesh sends float32 nodes; rounded outwards they must still pass the points' range check."""
     folder = read_model_folder(settings.model)
-    shifted = replace(folder, nodes=folder.nodes + 0.01)  # float32(x + 0.01) rounds below x + 0.01 on some axes
+    # float32(x + 0.01) rounds below x + 0.01 on some axes
+    shifted = replace(folder, mesh=replace(folder.mesh, nodes=folder.nodes + 0.01))
     lo, hi = model_info(shifted, settings).bounds_mm
     nodes32 = shifted.nodes.astype(np.float32)
     assert (nodes32.min(axis=0) >= lo).all() and (nodes32.max(axis=0) <= hi).all()
