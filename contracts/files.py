@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
 
 
 def sha256(path: str | Path) -> str:
@@ -43,3 +45,23 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     with _atomic(path, "w") as fh:
         fh.write(text)
     return path
+
+
+def read_manifest_json(path: Path, model: type[BaseModel], *, version: int, error: type[Exception], kind: str,
+                       missing: str, stale: str):
+    """A folder's versioned manifest as `model`; `error` says why not: missing, not JSON, another format
+    (with `stale`, what to do about it) or a field that does not validate."""
+    if not path.is_file():
+        raise error(f"{path.parent}: no {path.name}; {missing}")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not valid JSON ({exc})") from None
+    found = data.get("format_version", "unversioned") if isinstance(data, dict) else "unversioned"
+    if found != version:
+        raise error(f"{path.parent}: {kind} format {found!r}, this code reads {version}; {stale}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        raise error(f"{path}: {'.'.join(map(str, e['loc']))}: {e['msg']}") from None

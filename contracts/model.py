@@ -11,7 +11,6 @@ leaves the previous model as it was; the reader checks every hash and refuses a 
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
@@ -20,10 +19,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict
 
 from .envelope import Envelope
-from .files import sha256
+from .files import read_manifest_json, sha256
 from .mesh import TetMesh, mesh_arrays, read_mesh
 from .tet10 import outward_triangles
 
@@ -245,22 +244,9 @@ class ModelFolder:
 
 def read_manifest(path: str | Path) -> ModelManifest:
     """The folder's manifest, or ModelError saying why it cannot be used."""
-    path = Path(path)
-    manifest_path = path / "manifest.json"
-    if not manifest_path.is_file():
-        raise ModelError(f"{path}: no manifest.json; is this a model folder written by `python -m training fit`?")
-    try:
-        data = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ModelError(f"{manifest_path}: not valid JSON ({exc})") from None
-    if data.get("format_version") != MODEL_FORMAT:
-        raise ModelError(f"{path}: format_version {data.get('format_version')!r}, this code reads {MODEL_FORMAT}; "
-                         "rebuild the model with `python -m training fit`")
-    try:
-        return ModelManifest.model_validate(data)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        raise ModelError(f"{manifest_path}: {'.'.join(map(str, e['loc']))}: {e['msg']}") from None
+    return read_manifest_json(Path(path) / "manifest.json", ModelManifest, version=MODEL_FORMAT, error=ModelError,
+                              kind="model", missing="is this a model folder written by `python -m training fit`?",
+                              stale="rebuild the model with `python -m training fit`")
 
 
 def read_model_folder(path: str | Path) -> ModelFolder:

@@ -10,16 +10,15 @@ A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus re
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict
 
 from .envelope import Envelope
-from .files import atomic_savez, atomic_write_text, sha256
+from .files import atomic_savez, atomic_write_text, read_manifest_json, sha256
 from .mesh import TetMesh, read_mesh
 
 SWEEP_FORMAT = 2
@@ -126,25 +125,9 @@ def write_manifest(folder: str | Path, manifest: SweepManifest) -> Path:
 
 def read_manifest(folder: str | Path) -> SweepManifest:
     """The folder's manifest; ValueError saying why when it is missing, of another format or invalid."""
-    path = Path(folder) / MANIFEST
-    if not path.is_file():
-        raise ValueError(f"{folder}: no {MANIFEST}; is it a `fem_offline sweep` output folder?")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
-    if data.get("format_version") != SWEEP_FORMAT:
-        raise ValueError(f"{folder}: sweep format {data.get('format_version', 'unversioned')!r}, this code reads "
-                         f"{SWEEP_FORMAT}; run the sweep again into a new folder")
-    try:
-        return SweepManifest.model_validate(data)
-    except ValidationError as exc:
-        raise ValueError(f"{path}: {_first_error(exc)}") from None
-
-
-def _first_error(exc: ValidationError) -> str:
-    e = exc.errors()[0]
-    return f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
+    return read_manifest_json(Path(folder) / MANIFEST, SweepManifest, version=SWEEP_FORMAT, error=ValueError,
+                              kind="sweep", missing="is it a `fem_offline sweep` output folder?",
+                              stale="run the sweep again into a new folder")
 
 
 @dataclass(frozen=True)

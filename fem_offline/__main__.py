@@ -4,26 +4,14 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from contracts.cli import number
+
 from .scene import SceneError, load_scene
-
-
-def _finite(name: str):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{name} must be finite, got {text!r}")
-        return value
-
-    return parse
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -33,25 +21,25 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("solve", help="solve one (displacement, angle) case")
     s.add_argument("--scene", required=True, type=Path)
-    s.add_argument("--displacement-mm", required=True, type=_finite("--displacement-mm"))
-    s.add_argument("--angle-deg", required=True, type=_finite("--angle-deg"))
+    s.add_argument("--displacement-mm", required=True, type=number("--displacement-mm"))
+    s.add_argument("--angle-deg", required=True, type=number("--angle-deg"))
     s.add_argument("--out", required=True, type=Path, help="output .npz")
     s.add_argument("--mesh", type=Path, help="reuse a saved mesh (e.g. a sweep's mesh.vtu)")
-    s.add_argument("--step-mm", type=_finite("--step-mm"), help="load step (default: the sweep's step)")
+    s.add_argument("--step-mm", type=number("--step-mm"), help="load step (default: the sweep's step)")
 
     w = sub.add_parser("sweep", help="solve the scene's whole grid (resumable)")
     w.add_argument("--scene", required=True, type=Path)
     w.add_argument("--out", required=True, type=Path, help="output folder")
-    w.add_argument("--workers", type=int, default=2, help="local processes, one path each (default 2)")
+    w.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one path each (default 2)")
     w.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
 
     c = sub.add_parser("cases", help="solve random off-grid cases inside the sweep's envelope (held-out set; resumable)")
     c.add_argument("--scene", required=True, type=Path)
     c.add_argument("--out", required=True, type=Path, help="output folder (offgrid_NNN.npz + mesh.npz)")
-    c.add_argument("--n", type=int, default=24, help="number of cases (default 24)")
-    c.add_argument("--seed", type=int, default=0, help="random seed of the draw (default 0)")
+    c.add_argument("--n", type=number("--n", int, minimum=1), default=24, help="number of cases (default 24)")
+    c.add_argument("--seed", type=number("--seed", int), default=0, help="random seed of the draw (default 0)")
     c.add_argument("--mesh", type=Path, help="the sweep's mesh.npz, so the cases share its nodes (default: mesh the scene)")
-    c.add_argument("--workers", type=int, default=2, help="local processes, one case each (default 2)")
+    c.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one case each (default 2)")
 
     m = sub.add_parser("mesh", help="mesh the scene and write it (.npz, .vtu, .msh or .xdmf)")
     m.add_argument("--scene", required=True, type=Path)
@@ -86,8 +74,6 @@ def _solve(args) -> None:
 def _sweep(args) -> int:
     from .sweep import run_sweep
 
-    if args.workers < 1:
-        raise ValueError("--workers: must be at least 1")
     if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
     manifest = run_sweep(load_scene(args.scene), args.out, workers=args.workers, scheduler=args.scheduler)
@@ -101,10 +87,6 @@ def _cases(args) -> int:
     from .cases import mesh_for_cases, solve_cases
     from .meshing import load_or_build_mesh
 
-    if args.n < 1:
-        raise ValueError("--n: must be at least 1")
-    if args.workers < 1:
-        raise ValueError("--workers: must be at least 1")
     scene = load_scene(args.scene)
     args.out.mkdir(parents=True, exist_ok=True)
     mesh_path = mesh_for_cases(load_or_build_mesh(scene, args.mesh), args.out)

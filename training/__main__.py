@@ -7,6 +7,8 @@ import logging
 import sys
 from pathlib import Path
 
+from contracts.cli import number
+
 
 def _case(text: str) -> tuple[float, float]:
     try:
@@ -14,19 +16,6 @@ def _case(text: str) -> tuple[float, float]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"--test-case: expected DISPLACEMENT_MM/ANGLE_DEG like 7.75/-5, got {text!r}") from None
     return d, a
-
-
-def _positive(name: str):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be at least 1, got {value}")
-        return value
-
-    return parse
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -37,11 +26,11 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--snapshots", required=True, type=Path, help="a `fem_offline sweep` output folder")
     f.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
     f.add_argument("--offgrid", type=Path, help="folder of `fem_offline solve` cases to evaluate on")
-    f.add_argument("--rank", type=_positive("--rank"), default=16, help="PCA modes (default 16, the paper's)")
-    f.add_argument("--width", type=_positive("--width"), default=60, help="hidden units per layer (default 60)")
-    f.add_argument("--depth", type=_positive("--depth"), default=1, help="hidden layers (default 1)")
-    f.add_argument("--iterations", type=_positive("--iterations"), default=1000, help="L-BFGS iterations (default 1000)")
-    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="PCA modes (default 16, the paper's)")
+    f.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units per layer (default 60)")
+    f.add_argument("--depth", type=number("--depth", int, minimum=1), default=1, help="hidden layers (default 1)")
+    f.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000, help="L-BFGS iterations (default 1000)")
+    f.add_argument("--seed", type=number("--seed", int), default=0)
     f.add_argument("--test-case", type=_case, action="append",
                    help="held-out snapshot D/A (repeatable; default: the paper's five)")
     return ap
