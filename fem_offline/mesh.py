@@ -1,4 +1,6 @@
-"""Quadratic tetrahedral mesh with tissue tags and named node sets; meshio I/O.
+"""The P2 mesh on the FE side: built from corner tets, handed to scikit-fem, and read or written with meshio.
+
+The mesh itself (contracts.mesh.TetMesh) and its .npz file belong to the contracts.
 
 Node numbering is scikit-fem's P2 DOF numbering (vertices first, then edge midpoints), so the
 FE solution vector indexes the mesh nodes directly. Tets are stored in VTK/meshio tetra10 order

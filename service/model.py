@@ -1,4 +1,4 @@
-"""Load a model folder (checking every hash) and answer queries with onnxruntime.
+"""The predictor: a model folder (contracts.model, read with every hash checked) answered with onnxruntime.
 
 Only numpy, scipy and onnxruntime here: the service never imports torch, gmsh or FE code.
 """

@@ -28,7 +28,9 @@ def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
         f"MLP {manifest.network.depth}x{manifest.network.width} tanh, "
         f"trained in {manifest.timing.train_seconds:.1f} s on {manifest.network.n_train} snapshots.",
         "",
-        "Errors of the exported float32 ONNX model against the FE solution, over all nodes. "
+        "Errors of the exported float32 ONNX model against the FE solution on this model's own mesh, over all "
+        "nodes: the surrogate's error alone. They leave out the FE discretisation error of that mesh (the distance "
+        "to the converged physics), which this manifest does not record. "
         f"e_NN: max nodal error; α: max angle between displacement vectors over nodes moving more than "
         f"{m.angle_floor_mm} mm; e_r: eq. 2, max component error / max component displacement.",
         "",
