@@ -1,7 +1,7 @@
 """Benchmark the offline FE on a scene: mesh size, assembly, linear and nonlinear solve times.
 
     python scripts/bench_fem.py [--scene fem_offline/scenes/default.toml] [--steps 12] [--sweep runs/default]
-    python scripts/bench_fem.py --scene fem_offline/scenes/paper_scale.toml --mesh runs/paper/mesh.vtu --steps 2
+    python scripts/bench_fem.py --scene fem_offline/scenes/paper_scale.toml --mesh runs/paper/mesh.npz --steps 2
 
 Prints medians measured in this run; with --sweep it also reads a finished sweep's manifest for
 the measured full-sweep time. Not a test: the numbers depend on the machine and its load.
