@@ -8,13 +8,14 @@ from typing import Annotated
 
 import numpy as np
 import orjson
-from fastapi import Depends, FastAPI, HTTPException, Request
+from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 
 from contracts.model import ModelManifest
 
+from .export import EXPORT_CONTENT, ExportFormat, export_response  # viz: ?format= (issue #13)
 from .model import ModelError, OutsideMesh, Predictor, read_model_folder
 from .schemas import MessageReply, PredictReply, ValidationReply, predict_request_model
 from .settings import Settings
@@ -134,17 +135,26 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return OrjsonResponse({"detail": errors}, status_code=422)
 
     @app.post("/predict", response_model=PredictReply, responses={
-        200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}},
-              "description": "JSON, or with `Accept: application/octet-stream` raw little-endian float32 (count x 3)"},
+        200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}, **EXPORT_CONTENT},  # viz
+              "description": "JSON, or with `Accept: application/octet-stream` raw little-endian float32 (count x 3); "
+                             "with `?format=vtu|ply|glb` the deformed mesh as a file"},
         400: {"model": MessageReply, "description": "the body is not UTF-8 text"},
         413: {"model": MessageReply, "description": "request body too large"},
         422: {"model": ValidationReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"}})
-    async def predict(body: PredictRequest, request: Request, predictor: PredictorDep):  # type: ignore[valid-type]
+    async def predict(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
+                      export: Annotated[ExportFormat | None, Query(alias="format", description=(  # viz: issue #13
+                          "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file"))] = None):
         """Deformed positions for one guide displacement and angle.
 
         All nodes by default, the nodes of one `region`, or arbitrary `points` (reference
         positions, mm) interpolated inside their tet. Only what is asked for is decoded.
+        With `?format=vtu|ply|glb`, the whole deformed mesh as a file (service/export.py).
         """
+        if export is not None:  # viz: issue #13; the JSON and binary path below is unchanged
+            reply = export_response(predictor, displacement_mm=body.displacement_mm, angle_deg=body.angle_deg,
+                                    fmt=export, region=body.region, points=body.points)
+            requests.labels("all", export.value, str(reply.status_code)).inc()
+            return reply
         t0 = time.perf_counter()
         region = body.region.value if body.region is not None else None
         label = region or ("points" if body.points is not None else "all")
