@@ -17,6 +17,7 @@ def main(argv: list[str] | None = None) -> int:
         return export_main(argv[1:])
     from pydantic import ValidationError
 
+    from .igtl import IgtlError
     from .model import ModelError
     from .settings import Settings
 
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
         for err in exc.errors():
             print(f"error: --{'.'.join(map(str, err['loc'])).replace('_', '-')}: {err['msg']}", file=sys.stderr)
         return 2
-    except ModelError as exc:
+    except (ModelError, IgtlError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     import uvicorn

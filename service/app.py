@@ -16,6 +16,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, H
 from contracts.model import ModelManifest
 
 from .export import EXPORT_CONTENT, ExportFormat, export_response  # viz: ?format= (issue #13)
+from .igtl import igtl_server  # viz: OpenIGTLink (issue #13)
 from .model import ModelError, OutsideMesh, Predictor, read_model_folder
 from .schemas import MessageReply, PredictReply, ValidationReply, predict_request_model
 from .settings import Settings
@@ -98,11 +99,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     latency = Histogram("predict_latency_seconds", "POST /predict handling time", ["region"],
                         buckets=LATENCY_BUCKETS, registry=registry)
 
+    igtl = igtl_server(settings, folder)  # viz: None unless settings.igtl; IgtlError for a target outside the mesh
+
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         app.state.predictor = Predictor(folder, threads=settings.threads)
         log.info("model %s loaded: %d nodes", manifest.name, len(folder.nodes))
+        if igtl is not None:  # viz
+            igtl.start(app.state.predictor)
         yield
+        if igtl is not None:  # viz
+            igtl.stop()
         app.state.predictor = None
 
     app = FastAPI(
