@@ -20,6 +20,7 @@ from .igtl import igtl_server  # viz: OpenIGTLink (issue #13)
 from .model import ModelError, OutsideMesh, Predictor, read_model_folder
 from .schemas import MessageReply, PredictReply, ValidationReply, predict_request_model
 from .settings import Settings
+from .viewer import viewer_router  # viz: GET /viewer (issue #13)
 
 log = logging.getLogger(__name__)
 BINARY = "application/octet-stream"
@@ -121,6 +122,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.predictor = None
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.include_router(viewer_router())  # viz: the browser viewer and its assets
     allowed = _allowed_values(manifest, settings.max_points, bounds)
 
     @app.exception_handler(RequestValidationError)

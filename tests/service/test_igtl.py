@@ -12,16 +12,11 @@ from fastapi.testclient import TestClient
 from pyigtl.messages import CRC64
 from viz_fixtures import predict_json, prostate_point, tiny_folder, tiny_model, tiny_predictor, tiny_sweep  # noqa: F401
 
+from service.browser import free_port
 from service.guide import Guide, OffAxisPose
 from service.igtl import POINTS_NAME, STATUS_NAME, Responder, read_message
 
 POSES = [(0.0, 0.0), (5.0, 3.0), (10.0, -10.0), (2.25, 7.5), (10.0, 10.0)]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +26,7 @@ def served(tiny_model, tiny_folder):  # noqa: F811
     from service.settings import Settings
 
     target = prostate_point(tiny_folder)
-    settings = Settings(model=tiny_model, igtl=True, igtl_port=_free_port(), igtl_targets={"lesion": target})
+    settings = Settings(model=tiny_model, igtl=True, igtl_port=free_port(), igtl_targets={"lesion": target})
     with TestClient(create_app(settings)) as client:
         yield client, settings.igtl_port, target
 
