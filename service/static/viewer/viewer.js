@@ -88,7 +88,7 @@ function buildScene() {
   scene = new THREE.Scene();
   scene.background = new THREE.Color(0x1d2127);
   const view = $('view');
-  renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer = new THREE.WebGLRenderer({ antialias: true });
   renderer.setPixelRatio(window.devicePixelRatio);
   renderer.setSize(view.clientWidth, view.clientHeight);
   view.appendChild(renderer.domElement);
@@ -204,7 +204,6 @@ async function frame() {
     render();
     gl.finish();  // count the frame when it is drawn, not when its commands are queued
     viewer.lastRenderMs = performance.now() - renderStart;
-    viewer.lastApplyMs = renderStart - fetchStart - fetchMs;
     const ms = performance.now() - since;
     viewer.lastFrameMs = ms;
     viewer.lastFetchMs = fetchMs;
