@@ -152,7 +152,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         422: {"model": ValidationReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"}})
     async def predict(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
                       export: Annotated[ExportFormat | None, Query(alias="format", description=(  # viz: issue #13
-                          "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file"))] = None):
+                          "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file; "
+                          "with region or points, 422 (format_conflict)"))] = None):
         """Deformed positions for one guide displacement and angle.
 
         All nodes by default, the nodes of one `region`, or arbitrary `points` (reference

@@ -118,7 +118,7 @@ def export_response(predictor, *, displacement_mm: float, angle_deg: float, fmt:
     """POST /predict?format=...: the deformed mesh as an attachment; 422 when region or points are given too."""
     if region is not None or points is not None:
         return JSONResponse(status_code=422, content={"detail": [{
-            "field": "format", "type": "value_error",
+            "field": "format", "type": "format_conflict",
             "message": "format: a file holds the whole mesh; leave out region and points (or leave out format)"}]})
     folder = predictor.folder
     body = export_bytes(folder, predictor.displacement(displacement_mm, angle_deg), fmt)

@@ -74,7 +74,7 @@ def test_glb_holds_one_named_surface_per_tissue(tiny_client, tiny_folder, json_p
 
 def test_format_refuses_a_region_or_points_and_unknown_names(tiny_client):  # noqa: F811
     reply = _export(tiny_client, "vtu", region="markers")
-    assert reply.status_code == 422 and reply.json()["detail"][0]["field"] == "format"
+    assert reply.status_code == 422 and reply.json()["detail"][0]["type"] == "format_conflict"
     reply = _export(tiny_client, "stl")
     assert reply.status_code == 422 and "format" in reply.json()["detail"][0]["field"]
 

@@ -18,7 +18,7 @@ const OPACITY = { adipose: 0.1, rectal_wall: 0.45 };
 const $ = (id) => document.getElementById(id);
 
 const viewer = window.__viewer = {
-  ready: false, frames: 0, lastFrameMs: null, lastFetchMs: null, frameMs: [], errors: [], targets: [],
+  ready: false, frames: 0, lastFrameMs: null, lastFetchMs: null, lastRenderMs: null, errors: [], targets: [],
   lastFrame: null,
 };
 const state = { d: 0, a: 0, inflight: false, pendingSince: null, layers: [], targets: [] };
@@ -207,7 +207,6 @@ async function frame() {
     const ms = performance.now() - since;
     viewer.lastFrameMs = ms;
     viewer.lastFetchMs = fetchMs;
-    viewer.frameMs.push(ms);
     viewer.frames += 1;
     viewer.lastFrame = { displacement_mm: d, angle_deg: a };
     $('latency').textContent = `frame ${ms.toFixed(1)} ms (fetch ${fetchMs.toFixed(1)} ms, ${regions.length + (targets.length ? 1 : 0)} requests)`;
