@@ -12,6 +12,7 @@ print('\n'.join(p['dependencies'] + p['optional-dependencies']['service']))" > r
  && /opt/venv/bin/python -m pip install --no-cache-dir -r requirements.txt
 
 COPY contracts/ contracts/
+# service/ carries the viewer's page and its vendored three.js (service/static/viewer): no npm, no CDN
 COPY service/ service/
 COPY models/default/ models/default/
 
@@ -19,7 +20,8 @@ RUN useradd --uid 10001 --no-create-home --shell /usr/sbin/nologin deform
 USER deform
 
 ENV PATH=/opt/venv/bin:$PATH DEFORM_HOST=0.0.0.0 DEFORM_PORT=8000 DEFORM_MODEL=/app/models/default
-EXPOSE 8000
+# 18944: OpenIGTLink, served only with DEFORM_IGTL=true
+EXPOSE 8000 18944
 HEALTHCHECK --interval=10s --timeout=3s --start-period=15s --retries=3 \
   CMD ["python", "-c", "import os, sys, urllib.request; port = os.environ['DEFORM_PORT']; sys.exit(urllib.request.urlopen(f'http://127.0.0.1:{port}/readyz', timeout=2).status != 200)"]
 CMD ["python", "-m", "service"]

@@ -9,10 +9,15 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 IMAGE ?= deform-service
 
-.PHONY: install serve test test-fast bench bench-service tradeoff convergence default-model container-test clean system-deps
+.PHONY: install serve test test-fast bench bench-service tradeoff convergence default-model container-test clean system-deps viewer-assets
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
+# The viewer's browser tests drive Debian's chromium through Playwright (no browser download).
+BROWSER_DEBS := chromium
+# three.js from npm (viewer/package-lock.json), copied where the service serves it; the copies are committed.
+VIEWER_VENDOR := service/static/viewer/vendor
+THREE := viewer/node_modules/three
 
 system-deps:
 	@if ! ldconfig -p | grep -q libGLU.so.1 || ! ldconfig -p | grep -q libXcursor.so.1 \
@@ -20,6 +25,16 @@ system-deps:
 	  echo "installing gmsh's system libraries: $(GMSH_DEBS)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(GMSH_DEBS) >/dev/null; \
 	fi
+	@if ! command -v chromium >/dev/null; then \
+	  echo "installing the viewer tests' browser: $(BROWSER_DEBS)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(BROWSER_DEBS) >/dev/null; \
+	fi
+
+viewer-assets:
+	cd viewer && npm ci --no-audit --no-fund
+	mkdir -p $(VIEWER_VENDOR)
+	cp $(THREE)/build/three.module.js $(THREE)/build/three.core.js $(THREE)/examples/jsm/controls/OrbitControls.js \
+	  $(THREE)/LICENSE $(VIEWER_VENDOR)/
 
 $(STAMP): pyproject.toml
 	$(MAKE) system-deps

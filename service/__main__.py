@@ -1,4 +1,7 @@
-"""`python -m service --model models/default --host 127.0.0.1 --port 8000`: serve a model folder."""
+"""`python -m service --model models/default --host 127.0.0.1 --port 8000`: serve a model folder.
+
+`python -m service export --model M --displacement-mm D --angle-deg B --out case.vtu`: write a deformed mesh.
+"""
 
 from __future__ import annotations
 
@@ -7,8 +10,14 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["export"]:  # the only subcommand; every other argument list serves, as before
+        from .export_cli import main as export_main
+
+        return export_main(argv[1:])
     from pydantic import ValidationError
 
+    from .igtl import IgtlError
     from .model import ModelError
     from .settings import Settings
 
@@ -26,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
         for err in exc.errors():
             print(f"error: --{'.'.join(map(str, err['loc'])).replace('_', '-')}: {err['msg']}", file=sys.stderr)
         return 2
-    except ModelError as exc:
+    except (ModelError, IgtlError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     import uvicorn

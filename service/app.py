@@ -11,12 +11,14 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import http
 from .docs import add_offline_docs
+from .igtl import igtl_server
 from .info import model_info
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, read_model_folder
 from .routes import predict_router, router
 from .schemas import field_hints, predict_request_model
 from .settings import Settings
+from .viewer import viewer_router
 
 log = logging.getLogger(__name__)
 
@@ -29,12 +31,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # the routes are added, before any lifespan runs. ModelError stops the start with a clear message.
     folder = read_model_folder(settings.model)
     info = model_info(folder, settings)
+    igtl = igtl_server(settings, folder)  # None unless settings.igtl; IgtlError for a target outside the mesh
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         app.state.predictor = Predictor(folder, threads=settings.threads)
         log.info("model %s loaded: %d nodes", info.name, len(folder.nodes))
+        if igtl is not None:
+            igtl.start(app.state.predictor)
         yield
+        if igtl is not None:
+            igtl.stop()
         app.state.predictor = None
 
     app = FastAPI(
@@ -57,6 +64,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(OutsideMesh, http.outside_mesh)
     app.include_router(predict_router(predict_request_model(info, settings.max_points)))
     app.include_router(router)
+    app.include_router(viewer_router())
     add_offline_docs(app)
     return app
 

@@ -4,10 +4,11 @@
 from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import PlainTextResponse, Response
 from starlette.concurrency import run_in_threadpool
 
+from .export import EXPORT_CONTENT, ExportFormat, export_response
 from .http import BINARY, JsonBodyRoute, OrjsonResponse, reply_format
 from .info import ModelInfo
 from .metrics import FORMAT, TARGET, Metrics
@@ -88,9 +89,10 @@ def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model
 
 
 PREDICT_RESPONSES = {
-    200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}},
+    200: {"content": {BINARY: {"schema": {"type": "string", "format": "binary"}}, **EXPORT_CONTENT},
           "description": "JSON, or raw little-endian float32 (count x 3) when the Accept header prefers "
-                         "`application/octet-stream` (a strictly higher q than JSON)"},
+                         "`application/octet-stream` (a strictly higher q than JSON); "
+                         "with `?format=vtu|ply|glb` the deformed mesh as a file"},
     400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
     406: {"model": ErrorReply, "description": "the Accept header allows neither JSON nor application/octet-stream"},
     413: {"model": ErrorReply, "description": "request body too large"},
@@ -109,14 +111,22 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
 
     @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
     async def predict_endpoint(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
-                               info: InfoDep):
+                               info: InfoDep, export: Annotated[ExportFormat | None, Query(alias="format", description=(
+                                   "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file; "
+                                   "with region or points, 422 (format_conflict)"))] = None):
         """Deformed positions for one guide displacement and angle.
 
         All nodes by default, the nodes of one `region`, or arbitrary `points` (reference
         positions, mm) interpolated inside their tet. Only what is asked for is decoded.
+        With `?format=vtu|ply|glb`, the whole deformed mesh as a file (service/export.py).
         """
         target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
         setattr(request.state, TARGET, target)  # for the metrics middleware, which counts the reply
+        if export is not None:
+            setattr(request.state, FORMAT, export.value)
+            region = body.region.value if body.region is not None else None
+            return await run_in_threadpool(export_response, predictor, displacement_mm=body.displacement_mm,
+                                           angle_deg=body.angle_deg, fmt=export, region=region, points=body.points)
         fmt = reply_format(request.headers.get("accept"))
         setattr(request.state, FORMAT, fmt)
         # Decoding, locating points and serialising run in the thread pool: the event loop stays free

@@ -1,5 +1,42 @@
+"""Session fixtures every test folder shares: a tiny linear sweep and the model fitted on it (seconds)."""
+
 import os
+from pathlib import Path
+
+import pytest
 
 # Tests run several solver processes side by side on 2 cores; keep MKL to one thread each.
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+SCENES = Path(__file__).resolve().parents[1] / "fem_offline" / "scenes"
+TINY_TEST_CASES = ((5.0, -2.0), (3.0, 4.0))
+
+
+@pytest.fixture(scope="session")
+def tiny_test_cases():
+    return TINY_TEST_CASES
+
+
+@pytest.fixture(scope="session")
+def tiny_sweep(tmp_path_factory) -> Path:
+    """A linear sweep of the tiny scene on a 1 mm x 2 deg grid (110 snapshots, superposition: fast)."""
+    from fem_offline.scene import load_scene
+    from fem_offline.sweep import run_sweep
+
+    scene = load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False},
+                       sweep={"displacement_step_mm": 1.0, "displacement_max_mm": 10.0, "angle_min_deg": -10.0,
+                              "angle_max_deg": 10.0, "angle_step_deg": 2.0})
+    out = tmp_path_factory.mktemp("sweep")
+    manifest = run_sweep(scene, out)
+    assert manifest.n_done == 110
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_model(tiny_sweep, tmp_path_factory) -> Path:
+    from training.fit import FitOptions, fit
+
+    out = tmp_path_factory.mktemp("models") / "tiny"
+    fit(tiny_sweep, out, FitOptions(rank=8, max_iterations=300, test_cases=TINY_TEST_CASES), progress=False)
+    return out

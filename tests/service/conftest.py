@@ -19,3 +19,27 @@ def client(settings):
 
     with TestClient(create_app(settings)) as c:
         yield c
+
+
+# The tiny model (tests/conftest.py) for the viewer, export and OpenIGTLink tests.
+@pytest.fixture(scope="session")
+def tiny_folder(tiny_model):
+    from service.model import read_model_folder
+
+    return read_model_folder(tiny_model)
+
+
+@pytest.fixture(scope="session")
+def tiny_predictor(tiny_folder):
+    from service.model import Predictor
+
+    return Predictor(tiny_folder)
+
+
+@pytest.fixture(scope="session")
+def tiny_client(tiny_model):
+    from service.app import create_app
+    from service.settings import Settings
+
+    with TestClient(create_app(Settings(model=tiny_model))) as client:
+        yield client

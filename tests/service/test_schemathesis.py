@@ -21,5 +21,8 @@ def test_api_conforms_to_its_schema(case):
     response = case.call()
     # A point in the rectal lumen (a hole in the mesh) is schema-valid, yet has no tet to be
     # interpolated in: that 422 is the right answer, so only then is "valid data accepted" waived.
-    outside = response.status_code == 422 and b'"type":"outside_mesh"' in response.content
+    # Likewise ?format= (a whole-mesh file) with region or points in the body: OpenAPI cannot say
+    # that a query parameter excludes body fields.
+    outside = response.status_code == 422 and (b'"type":"outside_mesh"' in response.content
+                                                or b'"type":"format_conflict"' in response.content)
     case.validate_response(response, excluded_checks=[positive_data_acceptance] if outside else [])

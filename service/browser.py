@@ -1,0 +1,139 @@
+"""Drive the viewer in a real browser: Debian's chromium under Playwright (the dev extra; never a downloaded browser).
+
+For the viewer's tests and scripts/bench_viewer.py; the service itself never imports this module.
+WebGL runs on SwiftShader (software), which headless chromium needs without a GPU.
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from contextlib import contextmanager
+from typing import Iterator
+
+CHROMIUM = ("chromium", "chromium-browser")
+WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def find_chromium() -> str | None:
+    """Path of a chromium on PATH (`make system-deps` installs Debian's), or None."""
+    return next((path for path in map(shutil.which, CHROMIUM) if path), None)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def serve_in_thread(app, *, timeout_s: float = 30.0) -> Iterator[str]:
+    """Run `app` under uvicorn on a free loopback port in this process; yields its base URL."""
+    import uvicorn
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, name="uvicorn", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + timeout_s
+    while not server.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.05)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(timeout_s)
+
+
+@contextmanager
+def serve_process(model, *, timeout_s: float = 60.0) -> Iterator[str]:
+    """Run `python -m service --model M` on a free loopback port, as deployed; yields its base URL."""
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    process = subprocess.Popen([sys.executable, "-m", "service", "--model", str(model), "--port", str(port),
+                                "--log-level", "warning"])
+    try:
+        deadline = time.monotonic() + timeout_s
+        while not _answers(f"{url}/readyz"):
+            if process.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the service did not become ready (exit code {process.poll()})")
+            time.sleep(0.2)
+        yield url
+    finally:
+        process.terminate()
+        process.wait(timeout_s)
+
+
+def _answers(url: str) -> bool:
+    try:
+        with urllib.request.urlopen(url, timeout=1):
+            return True
+    except OSError:
+        return False
+
+
+@contextmanager
+def open_viewer(url: str, *, width: int = 1280, height: int = 800, watch: bool = True) -> Iterator[tuple[object, list[str]]]:
+    """(page, problems) with /viewer loaded and its first frame drawn.
+
+    With `watch`, problems collects console errors, page errors and any request that leaves
+    `url` (the page must work offline); benchmarks leave it off, since every watched request
+    is an event for the driver to handle on the same cores.
+    """
+    from playwright.sync_api import sync_playwright
+
+    executable = find_chromium()
+    if executable is None:
+        raise FileNotFoundError("no chromium on PATH (make system-deps installs it)")
+    problems: list[str] = []
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=executable, args=WEBGL_FLAGS)
+        try:
+            page = browser.new_page(viewport={"width": width, "height": height})
+            if watch:
+                page.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
+                page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+                page.on("request", lambda r: r.url.startswith(url) or problems.append(f"request off the service: {r.url}"))
+            page.goto(f"{url}/viewer")
+            page.wait_for_function("window.__viewer && window.__viewer.frames >= 1", timeout=60_000)
+            yield page, problems
+        finally:
+            browser.close()
+
+
+def set_slider(page, slider: str, value: float, *, timeout_ms: float = 30_000) -> dict:
+    """Move a slider ("displacement" or "angle") as a user would and wait for the frame that shows it."""
+    key = {"displacement": "displacement_mm", "angle": "angle_deg"}[slider]
+    page.fill(f"#{slider}", str(value))  # sets the value and fires `input`, like a drag's last step
+    page.wait_for_function(f"(v) => window.__viewer.lastFrame && Math.abs(window.__viewer.lastFrame.{key} - v) < 1e-9 "
+                           "&& !window.__viewer.busy", arg=value, timeout=timeout_ms)
+    return page.evaluate("({lastFrameMs: __viewer.lastFrameMs, lastFetchMs: __viewer.lastFetchMs, "
+                         "frames: __viewer.frames, lastFrame: __viewer.lastFrame})")
+
+
+# A drag inside the page: each step sets the slider and fires `input` as the browser does while a
+# user drags, waits for the frame that shows it, then pauses (a hand moves at a few tens of Hz).
+DRAG = """async ([id, values, pauseMs]) => {
+  const slider = document.getElementById(id), out = [];
+  for (const value of values) {
+    const before = window.__viewer.frames;
+    slider.value = String(value);
+    slider.dispatchEvent(new Event('input', { bubbles: true }));
+    while (window.__viewer.frames === before || window.__viewer.busy) await new Promise((r) => setTimeout(r, 0));
+    const v = window.__viewer;
+    out.push({ frameMs: v.lastFrameMs, fetchMs: v.lastFetchMs, renderMs: v.lastRenderMs });
+    await new Promise((r) => setTimeout(r, pauseMs));
+  }
+  return out; }"""
+
+
+def drag(page, slider: str, values, *, pause_ms: float = 30.0) -> list[dict]:
+    """Move a slider through `values` from inside the page; the page's own figures for each frame."""
+    return page.evaluate(DRAG, [slider, [float(v) for v in values], pause_ms])

@@ -1,0 +1,345 @@
+// The 3-D viewer: reference surfaces from /viewer/scene.json once, then per frame POST /predict
+// for the few regions holding every drawn node (binary float32 little-endian, count x 3) and for
+// the targets (points); each drawn node's position is gathered from those replies.
+// Slider-to-frame latency (input event to WebGL finished) is shown bottom left and kept in
+// window.__viewer for tests.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/OrbitControls.js';
+
+const BINARY = 'application/octet-stream';
+const COLOURS = { prostate: 0xd6604d, rectal_wall: 0xa6611a, bladder: 0x6a9fd4, pubic_bone: 0xe6e2d2,
+  spine: 0xe6e2d2, adipose: 0xf5d77a };
+// viridis at 0, 1/4, 1/2, 3/4, 1: the prostate's displacement magnitude, 0 .. colour_scale_mm (scene.json)
+const COLOUR_MAP = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383],
+  [0.993, 0.906, 0.144]];
+const GUIDE_LENGTH_MM = 12;
+// see-through: the fat around everything, and the rectal wall around the guide
+const OPACITY = { adipose: 0.1, rectal_wall: 0.45 };
+const $ = (id) => document.getElementById(id);
+
+const viewer = window.__viewer = {
+  ready: false, frames: 0, lastFrameMs: null, lastFetchMs: null, lastRenderMs: null, errors: [], targets: [],
+  lastFrame: null,
+};
+const state = { d: 0, a: 0, inflight: false, pendingSince: null, layers: [], targets: [] };
+Object.defineProperty(viewer, 'busy', { get: () => state.inflight || state.pendingSince !== null });
+let scene, camera, renderer, controls, gl, markers, guide, info;
+
+function colourAt(t) {
+  const x = Math.min(Math.max(t, 0), 1) * (COLOUR_MAP.length - 1);
+  const i = Math.min(Math.floor(x), COLOUR_MAP.length - 2);
+  const f = x - i;
+  return COLOUR_MAP[i].map((c, k) => c + f * (COLOUR_MAP[i + 1][k] - c));
+}
+
+function showError(err) {
+  viewer.errors.push(String(err));
+  $('error').hidden = false;
+  $('error').textContent = String(err);
+}
+
+async function predict(body) {
+  const reply = await fetch('/predict', { method: 'POST', body: JSON.stringify(body),
+    headers: { 'content-type': 'application/json', accept: BINARY } });
+  if (!reply.ok) throw new Error(`/predict ${reply.status}: ${await reply.text()}`);
+  const positions = new Float32Array(await reply.arrayBuffer());  // little-endian on every WebGL platform
+  if (positions.length !== 3 * Number(reply.headers.get('X-Count'))) throw new Error('/predict: short reply');
+  return positions;
+}
+
+function direction(angleDeg) {  // a(beta) = axis cos b + (n x axis) sin b
+  const b = THREE.MathUtils.degToRad(angleDeg);
+  const axis = new THREE.Vector3(...info.guide.axis);
+  const side = new THREE.Vector3(...info.guide.tilt_normal).cross(axis);
+  return axis.multiplyScalar(Math.cos(b)).addScaledVector(side, Math.sin(b));
+}
+
+function buildLayer(layer) {
+  const geometry = new THREE.BufferGeometry();
+  const reference = Float64Array.from(layer.reference);  // (k * 3) mm, the surface's own nodes
+  geometry.setAttribute('position', new THREE.BufferAttribute(Float32Array.from(reference), 3));
+  geometry.setIndex(new THREE.BufferAttribute(Uint32Array.from(layer.triangles), 1));
+  const adipose = layer.name === 'adipose';
+  const prostate = layer.name === 'prostate';
+  const opacity = OPACITY[layer.name] ?? 1;
+  if (prostate) geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(reference.length), 3));
+  geometry.computeVertexNormals();
+  const material = new THREE.MeshPhongMaterial({
+    color: prostate ? 0xffffff : COLOURS[layer.name] ?? 0xa0a0a0, vertexColors: prostate, shininess: 20,
+    transparent: opacity < 1, opacity, depthWrite: !adipose, side: adipose ? THREE.DoubleSide : THREE.FrontSide,
+  });
+  const mesh = new THREE.Mesh(geometry, material);
+  mesh.name = layer.name;
+  scene.add(mesh);
+  return { ...layer, reference, mesh };
+}
+
+function gatherInto(out, replies, { source, row }) {  // node k's position is row[k] of reply source[k]
+  for (let k = 0; k < source.length; k++) {
+    const from = replies[source[k]], i = 3 * row[k];
+    out[3 * k] = from[i];
+    out[3 * k + 1] = from[i + 1];
+    out[3 * k + 2] = from[i + 2];
+  }
+  return out;
+}
+
+function buildScene() {
+  scene = new THREE.Scene();
+  scene.background = new THREE.Color(0x1d2127);
+  const view = $('view');
+  renderer = new THREE.WebGLRenderer({ antialias: true });
+  renderer.setPixelRatio(window.devicePixelRatio);
+  renderer.setSize(view.clientWidth, view.clientHeight);
+  view.appendChild(renderer.domElement);
+  gl = renderer.getContext();
+  state.layers = info.tissues.map(buildLayer);
+  const prostate = state.layers.find((l) => l.name === 'prostate').mesh;
+  prostate.geometry.computeBoundingSphere();
+  const centre = prostate.geometry.boundingSphere.center.clone();
+  camera = new THREE.PerspectiveCamera(30, view.clientWidth / view.clientHeight, 1, 5000);
+  camera.up.set(0, 0, 1);
+  camera.position.copy(centre).add(new THREE.Vector3(250, -20, 110));  // from the right, above: the guide pushes across the view
+  scene.add(camera);
+  scene.add(new THREE.HemisphereLight(0xffffff, 0x404040, 1.6));
+  const light = new THREE.DirectionalLight(0xffffff, 1.6);
+  light.position.set(0.3, 0.4, 1);
+  camera.add(light);  // a head light: the lit side follows the view
+  controls = new OrbitControls(camera, renderer.domElement);
+  controls.target.copy(centre);
+  controls.update();
+  controls.addEventListener('change', render);
+  markers = new THREE.InstancedMesh(new THREE.SphereGeometry(1.2, 16, 12),
+    new THREE.MeshPhongMaterial({ color: 0xffdc00 }), info.markers.reference.length / 3);
+  scene.add(markers);
+  // the guide's tip end, GUIDE_LENGTH_MM long, half as wide as the wall patch it drags
+  const radius = info.guide.radius_mm / 2;
+  guide = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius, GUIDE_LENGTH_MM, 32),
+    new THREE.MeshPhongMaterial({ color: 0x8fd18f, transparent: true, opacity: 0.85 }));
+  scene.add(guide, motionLine(info.guide.tip_mm, info.guide.tip_mm));
+  window.addEventListener('resize', () => {
+    renderer.setSize(view.clientWidth, view.clientHeight);
+    camera.aspect = view.clientWidth / view.clientHeight;
+    camera.updateProjectionMatrix();
+    render();
+  });
+}
+
+function render() {
+  renderer.render(scene, camera);
+}
+
+function placeGuide(d, a) {
+  const dir = direction(a);  // the tip moves by d a(beta); the body lies behind the tip
+  const tip = new THREE.Vector3(...info.guide.tip_mm).addScaledVector(dir, d);
+  guide.position.copy(tip).addScaledVector(dir, -GUIDE_LENGTH_MM / 2);
+  guide.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), dir);
+}
+
+function applyLayer(layer, replies) {
+  const attribute = layer.mesh.geometry.attributes.position;
+  const positions = gatherInto(attribute.array, replies, layer);
+  attribute.needsUpdate = true;
+  if (layer.name === 'prostate') {
+    const colours = layer.mesh.geometry.attributes.color;
+    const scale = info.colour_scale_mm;
+    for (let i = 0; i < positions.length; i += 3) {
+      const u = Math.hypot(positions[i] - layer.reference[i], positions[i + 1] - layer.reference[i + 1],
+        positions[i + 2] - layer.reference[i + 2]);
+      colours.array.set(colourAt(u / scale), i);
+    }
+    colours.needsUpdate = true;
+  }
+  layer.mesh.geometry.computeVertexNormals();
+  layer.mesh.geometry.computeBoundingSphere();  // the picking ray tests against it
+}
+
+function applyMarkers(replies) {
+  const positions = gatherInto(new Float32Array(info.markers.reference.length), replies, info.markers);
+  const m = new THREE.Matrix4();
+  for (let i = 0; i < positions.length / 3; i++) {
+    markers.setMatrixAt(i, m.makeTranslation(positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]));
+  }
+  markers.instanceMatrix.needsUpdate = true;
+  markers.computeBoundingSphere();
+}
+
+function applyTargets(positions) {
+  state.targets.forEach((target, i) => {
+    const now = positions.subarray(3 * i, 3 * i + 3);
+    target.position = Array.from(now);
+    target.motionMm = Math.hypot(now[0] - target.reference[0], now[1] - target.reference[1], now[2] - target.reference[2]);
+    target.sphere.position.set(now[0], now[1], now[2]);
+    const line = target.line.geometry.attributes.position;
+    line.array.set(now, 3);
+    line.needsUpdate = true;
+    target.item.textContent = `T${i + 1}: moved ${target.motionMm.toFixed(2)} mm`;
+  });
+  viewer.targets = state.targets.map(({ reference, position, motionMm, frame }) => ({ reference, position, motionMm, frame }));
+}
+
+// One frame: the latest slider values, every drawn region and the targets in parallel, then render.
+async function frame() {
+  if (state.inflight || state.pendingSince === null) return;
+  const since = state.pendingSince;
+  state.pendingSince = null;
+  state.inflight = true;
+  const d = state.d, a = state.a, targets = state.targets.slice();
+  try {
+    const regions = info.regions;
+    const fetchStart = performance.now();
+    const asked = regions.map((region) => predict(region === null ? { displacement_mm: d, angle_deg: a }
+      : { displacement_mm: d, angle_deg: a, region }));  // null: the whole mesh
+    if (targets.length) asked.push(predict({ displacement_mm: d, angle_deg: a, points: targets.map((t) => t.reference) }));
+    const replies = await Promise.all(asked);
+    const fetchMs = performance.now() - fetchStart;
+    state.layers.forEach((layer) => applyLayer(layer, replies));
+    applyMarkers(replies);
+    if (targets.length && targets.length === state.targets.length) {
+      targets.forEach((t) => { t.frame = viewer.frames + 1; });
+      applyTargets(replies[replies.length - 1]);
+    } else if (state.targets.length) state.pendingSince ??= performance.now();  // a target came during the fetch
+    placeGuide(d, a);
+    const renderStart = performance.now();
+    render();
+    gl.finish();  // count the frame when it is drawn, not when its commands are queued
+    viewer.lastRenderMs = performance.now() - renderStart;
+    const ms = performance.now() - since;
+    viewer.lastFrameMs = ms;
+    viewer.lastFetchMs = fetchMs;
+    viewer.frames += 1;
+    viewer.lastFrame = { displacement_mm: d, angle_deg: a };
+    $('latency').textContent = `frame ${ms.toFixed(1)} ms (fetch ${fetchMs.toFixed(1)} ms, ${regions.length + (targets.length ? 1 : 0)} requests)`;
+  } catch (err) {
+    showError(err);
+  } finally {
+    state.inflight = false;
+    if (state.pendingSince !== null) frame();
+  }
+}
+
+function request(since) {
+  if (state.pendingSince === null) state.pendingSince = since;  // the oldest input not yet drawn
+  frame();
+}
+
+function setupSlider(id, [lo, hi], step, key) {
+  const slider = $(id), out = $(`${id}-value`);
+  Object.assign(slider, { min: lo, max: hi, step, value: Math.min(Math.max(0, lo), hi) });
+  state[key] = Number(slider.value);
+  out.textContent = Number(slider.value).toFixed(2);
+  slider.addEventListener('input', (event) => {
+    state[key] = Number(slider.value);
+    out.textContent = state[key].toFixed(2);
+    request(event.timeStamp || performance.now());
+  });
+}
+
+// Phong like the markers (one shader program); the line's program is compiled with the first frame
+// (a zero-length line at the tip), so adding a target never waits for a shader compile.
+const TARGET = new THREE.MeshPhongMaterial({ color: 0xff3030 });
+const TARGET_ORIGIN = new THREE.MeshPhongMaterial({ color: 0xbbbbbb });
+const MOTION_LINE = new THREE.LineBasicMaterial({ color: 0xff3030, depthTest: false });
+
+function motionLine(from, to) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array([...from, ...to]), 3));
+  const line = new THREE.Line(geometry, MOTION_LINE);
+  line.renderOrder = 1;
+  return line;
+}
+
+function addTarget(reference) {
+  const i = state.targets.length;
+  const sphere = new THREE.Mesh(new THREE.SphereGeometry(1.0, 16, 12), TARGET);
+  const origin = new THREE.Mesh(new THREE.SphereGeometry(0.6, 12, 8), TARGET_ORIGIN);
+  origin.position.set(...reference);
+  sphere.position.set(...reference);
+  const line = motionLine(reference, reference);
+  const item = document.createElement('li');
+  item.textContent = `T${i + 1}: …`;
+  $('targets').appendChild(item);
+  scene.add(sphere, origin, line);
+  state.targets.push({ reference, sphere, origin, line, item, motionMm: null, position: null, frame: null });
+  request(performance.now());
+}
+
+// A click (not a drag) on the prostate: the hit point's barycentric coordinates on the deformed
+// triangle, applied to the same triangle at rest, give the reference point /predict interpolates.
+function pickTarget(event) {
+  const rect = renderer.domElement.getBoundingClientRect();
+  const ndc = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1,
+    -((event.clientY - rect.top) / rect.height) * 2 + 1);
+  const hit = firstHit(ndc);
+  if (!hit || hit.object.name !== 'prostate') return;
+  const layer = state.layers.find((l) => l.name === 'prostate');
+  const position = layer.mesh.geometry.attributes.position;
+  const corners = [hit.face.a, hit.face.b, hit.face.c];
+  const [A, B, C] = corners.map((k) => new THREE.Vector3().fromBufferAttribute(position, k));
+  const w = THREE.Triangle.getBarycoord(hit.point, A, B, C, new THREE.Vector3());
+  const R = layer.reference;
+  addTarget([0, 1, 2].map((k) => w.x * R[3 * corners[0] + k] + w.y * R[3 * corners[1] + k] + w.z * R[3 * corners[2] + k]));
+}
+
+const raycaster = new THREE.Raycaster();
+function firstHit(ndc) {
+  raycaster.setFromCamera(ndc, camera);
+  const solid = state.layers.filter((l) => l.name !== 'adipose').map((l) => l.mesh);
+  return raycaster.intersectObjects(solid, false)[0] ?? null;
+}
+
+// For tests: the client coordinates of a prostate vertex that the first hit of its ray is the prostate's.
+viewer.prostateScreenPoint = () => {
+  const layer = state.layers.find((l) => l.name === 'prostate');
+  const rect = renderer.domElement.getBoundingClientRect();
+  const used = layer.source.map((_, k) => k);
+  const centre = layer.mesh.geometry.boundingSphere.center;
+  const p = new THREE.Vector3();
+  const candidates = used.map((k) => p.fromBufferAttribute(layer.mesh.geometry.attributes.position, k).clone())
+    .sort((u, v) => u.distanceTo(camera.position) - v.distanceTo(camera.position))
+    .map((v) => v.lerp(centre, 0.02));  // just inside the outline
+  for (const v of candidates) {
+    const ndc = v.clone().project(camera);
+    const hit = firstHit(new THREE.Vector2(ndc.x, ndc.y));
+    if (hit && hit.object.name === 'prostate') {
+      return { x: rect.left + (ndc.x + 1) / 2 * rect.width, y: rect.top + (1 - ndc.y) / 2 * rect.height };
+    }
+  }
+  return null;
+};
+viewer.cameraPosition = () => camera.position.toArray();
+
+function setupLegend() {
+  const stops = COLOUR_MAP.map((c, i) => `rgb(${c.map((v) => Math.round(255 * v)).join(',')}) ${100 * i / (COLOUR_MAP.length - 1)}%`);
+  document.querySelector('#legend .bar').style.background = `linear-gradient(to right, ${stops.join(', ')})`;
+  const top = info.colour_scale_mm;
+  document.querySelector('#legend .ticks').innerHTML = [0, top / 2, top].map((v) => `<span>${v.toFixed(1)}</span>`).join('');
+}
+
+async function main() {
+  const reply = await fetch('/viewer/scene.json');
+  if (!reply.ok) throw new Error(`/viewer/scene.json ${reply.status}: ${await reply.text()}`);
+  info = await reply.json();
+  $('model').textContent = `model ${info.model}`;
+  buildScene();
+  setupSlider('displacement', info.envelope.displacement_mm, 0.05, 'd');
+  setupSlider('angle', info.envelope.angle_deg, 0.1, 'a');
+  setupLegend();
+  let down = null;
+  renderer.domElement.addEventListener('pointerdown', (e) => { down = [e.clientX, e.clientY]; });
+  renderer.domElement.addEventListener('pointerup', (e) => {
+    if (down && Math.hypot(e.clientX - down[0], e.clientY - down[1]) < 4) pickTarget(e);
+    down = null;
+  });
+  $('clear-targets').addEventListener('click', () => {
+    state.targets.forEach((t) => scene.remove(t.sphere, t.origin, t.line));
+    state.targets = [];
+    viewer.targets = [];
+    $('targets').replaceChildren();
+    render();
+  });
+  request(performance.now());
+  viewer.ready = true;
+}
+
+main().catch(showError);

@@ -1,0 +1,17 @@
+"""Small helpers the viewer, export and OpenIGTLink tests share."""
+
+import numpy as np
+
+
+def predict_json(client, **body) -> dict:
+    """POST /predict as JSON; assert 200."""
+    reply = client.post("/predict", json=body)
+    assert reply.status_code == 200, reply.text
+    return reply.json()
+
+
+def prostate_point(folder) -> list[float]:
+    """A reference point inside the prostate: the centroid of its first tet."""
+    tissue = folder.manifest.mesh.tissues.index("prostate")
+    tet = folder.tets[np.flatnonzero(folder.mesh.tissue == tissue)[0]]
+    return folder.nodes[tet[:4]].mean(axis=0).tolist()
