@@ -1,0 +1,209 @@
+"""Grid convergence at the quantities users ask for: Roache's grid convergence index (ASME V&V 20).
+
+Three meshes whose every size is scaled by a constant ratio r (h_coarse = r h_medium = r^2 h_fine)
+give, for a scalar f with values f3, f2, f1 (coarse, medium, fine):
+
+    e32 = f3 - f2, e21 = f2 - f1
+    monotonic when e32 e21 > 0 (else oscillatory: no order can be observed)
+    observed order       p = ln(e32 / e21) / ln r
+    Richardson estimate  f_ext = f1 + (f1 - f2) / (r^p - 1)
+    GCI (fine, absolute) = Fs |f1 - f2| / (r^p - 1),  Fs = 1.25;  the same with (f2, f3) for the medium mesh
+
+For a whole field (every point of the prostate surface) the order p of its mean is used at each
+point: GCI_i = Fs |u1_i - u2_i| / (r^p - 1), the error bound of the fine field at that point.
+The fields are compared at fixed reference points, located in each mesh (contracts.interpolate).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from contracts.files import atomic_savez
+from contracts.interpolate import interpolation_matrix
+
+from . import guide as guide_mod
+from .continuation import PathState, solve_path
+from .problem import Problem
+from .scene import Scene
+
+log = logging.getLogger(__name__)
+
+SAFETY = 1.25  # Roache's factor of safety for three-grid studies
+NEAR_TIP_MM = 8.0  # the near-tip zone, reported apart from the rest
+
+
+@dataclass(frozen=True)
+class Richardson:
+    """One scalar on three meshes (coarse, medium, fine) and what they say about its converged value."""
+
+    values: tuple[float, float, float]  # f3, f2, f1
+    kind: str  # "monotonic", "oscillatory" or "converged" (no change between the meshes)
+    order: float  # observed p (nan unless monotonic)
+    extrapolated: float  # Richardson estimate (nan unless monotonic)
+    gci_fine: float  # absolute error band of the fine value, same unit as f
+    gci_medium: float
+
+
+def richardson(coarse: float, medium: float, fine: float, ratio: float) -> Richardson:
+    """Observed order, Richardson extrapolation and GCI of three values on meshes refined by `ratio`."""
+    e32, e21 = coarse - medium, medium - fine
+    values = (float(coarse), float(medium), float(fine))
+    if e21 == 0 and e32 == 0:
+        return Richardson(values, "converged", np.nan, fine, 0.0, 0.0)
+    if e32 * e21 <= 0:
+        # no observed order: the band is the spread of the three values, with the safety factor
+        spread = SAFETY * (max(values) - min(values))
+        return Richardson(values, "oscillatory", np.nan, np.nan, spread, spread)
+    p = float(np.log(e32 / e21) / np.log(ratio))
+    gain = ratio**p - 1.0
+    return Richardson(values, "monotonic", p, fine + (fine - medium) / gain,
+                      SAFETY * abs(e21) / gain, SAFETY * abs(e32) / gain)
+
+
+def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: float) -> tuple[np.ndarray, Richardson]:
+    """Per-point error band of the fine field (k,) in mm, from the observed order of the mean |u|.
+
+    coarse, medium, fine: (k, 3) displacements at the same reference points. Where the mean is not
+    monotonic, the band is Fs times the largest pointwise spread of the three fields.
+    """
+    mean = richardson(*(np.linalg.norm(u, axis=1).mean() for u in (coarse, medium, fine)), ratio)
+    if mean.kind == "monotonic":
+        return SAFETY * np.linalg.norm(fine - medium, axis=1) / (ratio**mean.order - 1.0), mean
+    spread = np.maximum(np.linalg.norm(fine - medium, axis=1), np.linalg.norm(medium - coarse, axis=1))
+    return SAFETY * spread, mean
+
+
+def scaled_scene(scene: Scene, scale: float) -> Scene:
+    """The scene with every mesh size (max, prostate, guide) multiplied by `scale`."""
+    m = scene.mesh
+    sizes = {"max_mm": m.max_mm * scale, "prostate_mm": m.prostate_mm * scale, "guide_mm": m.guide_mm * scale}
+    return scene.model_copy(update={"mesh": m.model_copy(update=sizes)})
+
+
+def probe_points(mesh, scene: Scene) -> dict[str, np.ndarray]:
+    """The fixed reference points (mm) every level is evaluated at, taken from one mesh.
+
+    markers (8, 3); prostate_surface (k, 3); interior (3, 3): the prostate's centroid and the points
+    5 mm and 10 mm in front of the tip along the guide axis.
+    """
+    names = mesh.tissue_names
+    prostate = mesh.tets[mesh.tissue == names.index("prostate"), :4]
+    corners = mesh.nodes[prostate]
+    volume = np.abs(np.linalg.det(corners[:, 1:] - corners[:, :1])) / 6
+    centroid = (corners.mean(axis=1) * volume[:, None]).sum(axis=0) / volume.sum()
+    tip, axis = np.asarray(scene.guide.tip_mm), guide_mod.direction(scene.guide, 0.0)
+    return {"markers": mesh.nodes[mesh.node_sets["markers"]],
+            "prostate_surface": mesh.nodes[mesh.node_sets["prostate_surface"]],
+            "interior": np.stack([centroid, tip + 5.0 * axis, tip + 10.0 * axis])}
+
+
+def at_points(mesh, u: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """u (n_nodes, 3) interpolated at reference points (k, 3); points just outside take the nearest tet's value."""
+    return interpolation_matrix(mesh.nodes, mesh.tets, points, nearest=True) @ u
+
+
+def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float, checkpoint: Path) -> tuple[np.ndarray, float]:
+    """The nonlinear solution at one case, load-stepped from rest; every converged step is saved to
+    `checkpoint`, and a later call resumes from the last one. Returns (u (n_nodes, 3), seconds spent)."""
+    step = problem.scene.solver.max_step_mm
+    state, seconds = None, 0.0
+    if checkpoint.exists():
+        with np.load(checkpoint) as z:
+            history = tuple((float(d), h) for d, h in zip(z["history_d"], z["history_u"]))
+            state, seconds = PathState(z["u"], float(z["d_mm"]), history), float(z["seconds"])
+        if state.d_mm >= displacement_mm - 1e-12:
+            return state.u.reshape(-1, 3), seconds
+        log.info("resuming %g mm, %g deg from %g mm", displacement_mm, angle_deg, state.d_mm)
+    start = state.d_mm if state else 0.0
+    n = max(1, int(np.ceil((displacement_mm - start) / step - 1e-9)))
+    targets = np.linspace(start, displacement_mm, n + 1)[1:]
+    previous = list(state.history) + [(state.d_mm, state.u)] if state else []
+    for d, u, stats in solve_path(problem, targets, angle_deg, state):
+        seconds += stats.seconds
+        previous = (previous + [(d, u.ravel())])[-3:]
+        hist = previous[:-1]
+        atomic_savez(checkpoint, u=u.ravel(), d_mm=d, seconds=seconds, history_d=np.array([h[0] for h in hist]),
+                     history_u=np.stack([h[1] for h in hist]) if hist else np.zeros((0, u.size)))
+    return u, seconds
+
+
+# The hard cases (displacement_mm, angle_deg): the full push straight and tilted (beta = -10 mirrors
+# +10 on the symmetric phantom), and a half push at an intermediate angle.
+HARD_CASES = ((10.0, 0.0), (10.0, 10.0), (5.0, 5.0))
+
+
+def run_study(scene: Scene, scales: list[float], out: Path, cases=HARD_CASES) -> dict:
+    """Solve every case on every level (sizes x scale, coarsest first), resumably under `out`, and
+    evaluate each at the probe points taken from the level nearest scale 1 (the default mesh).
+
+    Returns the raw numbers: per level its tet count and solve times, per case and level the
+    displacements (k, 3) at every probe point, and the probe points themselves.
+    """
+    from contracts.mesh import read_mesh, write_mesh
+
+    from .meshing import mesh_for_scene
+    from .problem import build_problem
+
+    out.mkdir(parents=True, exist_ok=True)
+    meshes = []
+    for scale in scales:
+        path = out / f"mesh_{scale:g}.npz"  # gmsh is not bit-reproducible: keep each level's mesh
+        if not path.exists():
+            write_mesh(path, mesh_for_scene(scaled_scene(scene, scale)))
+        meshes.append(read_mesh(path))
+    reference = meshes[[abs(s - 1.0) for s in scales].index(min(abs(s - 1.0) for s in scales))]
+    probes = probe_points(reference, scene)
+    levels = []
+    for scale, mesh in zip(scales, meshes):
+        problem = build_problem(scaled_scene(scene, scale), mesh)
+        level = {"scale": scale, "n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes), "cases": {}}
+        for d, beta in cases:
+            log.info("level %g (%d tets): %g mm, %g deg", scale, len(mesh.tets), d, beta)
+            u, seconds = solve_resumable(problem, d, beta, out / f"path_{scale:g}_{d:g}_{beta:g}.npz")
+            level["cases"][f"{d:g} mm, {beta:g} deg"] = {
+                "seconds": seconds, **{k: at_points(mesh, u, p) for k, p in probes.items()}}
+        levels.append(level)
+    return {"probes": probes, "levels": levels, "tip_mm": np.asarray(scene.guide.tip_mm)}
+
+
+def _row(r: Richardson) -> dict:
+    return {"values_mm": list(r.values), "kind": r.kind, "order": r.order, "extrapolated_mm": r.extrapolated,
+            "gci_fine_mm": r.gci_fine, "gci_medium_mm": r.gci_medium}
+
+
+def _summary(x: np.ndarray) -> dict:
+    return {"max": float(x.max()), "p95": float(np.percentile(x, 95)), "mean": float(x.mean())} if len(x) else {}
+
+
+def analyse(raw: dict) -> dict:
+    """GCI of every quantity of every case from the three finest levels of `run_study`'s result."""
+    coarse, medium, fine = raw["levels"][-3:]
+    ratio = coarse["scale"] / medium["scale"]
+    if not np.isclose(medium["scale"] / fine["scale"], ratio, rtol=1e-6) or ratio < 1.3 - 1e-9:
+        raise ValueError(f"levels {coarse['scale']}, {medium['scale']}, {fine['scale']}: need one ratio >= 1.3")
+    near = np.linalg.norm(raw["probes"]["prostate_surface"] - raw["tip_mm"], axis=1) < NEAR_TIP_MM
+    out = {"ratio": ratio, "levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} for lv in (coarse, medium, fine)],
+           "cases": {}}
+    for case in fine["cases"]:
+        u3, u2, u1 = (lv["cases"][case] for lv in (coarse, medium, fine))
+        row = {"seconds": [lv["cases"][case]["seconds"] for lv in (coarse, medium, fine)]}
+        for group in ("markers", "interior"):
+            mags = [np.linalg.norm(u[group], axis=1) for u in (u3, u2, u1)]
+            band, _ = field_gci(u3[group], u2[group], u1[group], ratio)
+            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g)}
+                          for a, b, c, g in zip(*mags, band)]
+        for zone, mask in (("near_tip", near), ("rest", ~near)):
+            s3, s2, s1 = (u["prostate_surface"][mask] for u in (u3, u2, u1))
+            mags = [np.linalg.norm(u, axis=1) for u in (s3, s2, s1)]
+            band, mean = field_gci(s3, s2, s1, ratio)
+            row[f"surface_{zone}"] = {
+                "n_points": int(mask.sum()), "mean_order": mean.order, "mean_kind": mean.kind,
+                "gci_mm": _summary(band), "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
+                **{stat: _row(richardson(*(f(m) for m in mags), ratio))
+                   for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
+        out["cases"][case] = row
+    return out

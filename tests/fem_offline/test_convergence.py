@@ -1,0 +1,54 @@
+"""Grid-convergence arithmetic on exact sequences, and the resumable path a study level runs on."""
+
+import numpy as np
+import pytest
+
+from fem_offline.convergence import SAFETY, field_gci, richardson, scaled_scene, solve_resumable
+from fem_offline.solve import solve_case
+
+
+@pytest.mark.parametrize("order", [1.0, 2.0, 3.0])
+def test_richardson_recovers_order_and_limit_of_an_exact_power_law(order):
+    """f(h) = f0 + C h^p on h = r^2, r, 1: p and f0 come back exactly, and the fine GCI is Fs |f1 - f0|."""
+    f0, c, r = 4.0, -0.3, 1.3
+    f3, f2, f1 = (f0 + c * h**order for h in (r**2, r, 1.0))
+    out = richardson(f3, f2, f1, r)
+    assert out.kind == "monotonic"
+    assert out.order == pytest.approx(order, rel=1e-10) and out.extrapolated == pytest.approx(f0, rel=1e-12)
+    assert out.gci_fine == pytest.approx(SAFETY * abs(f1 - f0), rel=1e-10)
+    assert out.gci_medium == pytest.approx(SAFETY * abs(f2 - f0), rel=1e-10)
+
+
+def test_oscillating_values_have_no_order_and_a_band_of_their_spread():
+    out = richardson(1.0, 1.2, 1.1, 1.3)
+    assert out.kind == "oscillatory" and np.isnan(out.order) and np.isnan(out.extrapolated)
+    assert out.gci_fine == pytest.approx(SAFETY * 0.2)
+
+
+def test_field_band_is_the_pointwise_distance_to_the_limit():
+    """u(h) = u0 + h^2 a u0/|u0| at every point (|u| follows the power law exactly): the band is
+    Fs |u1 - u0| point by point, with the order p = 2 observed on the mean."""
+    rng = np.random.default_rng(0)
+    u0, a, r = rng.normal(size=(50, 3)), rng.uniform(0.1, 1.0, size=(50, 1)), 1.4
+    v = a * u0 / np.linalg.norm(u0, axis=1, keepdims=True)
+    coarse, medium, fine = (u0 + h**2 * v for h in (r**2, r, 1.0))
+    band, mean = field_gci(coarse, medium, fine, r)
+    assert mean.kind == "monotonic" and mean.order == pytest.approx(2.0, rel=1e-10)
+    np.testing.assert_allclose(band, SAFETY * np.linalg.norm(fine - u0, axis=1), rtol=1e-10)
+
+
+def test_scaled_scene_scales_every_size_together(tiny_scene):
+    s = scaled_scene(tiny_scene, 1.3).mesh
+    m = tiny_scene.mesh
+    assert (s.max_mm, s.prostate_mm, s.guide_mm) == pytest.approx((1.3 * m.max_mm, 1.3 * m.prostate_mm, 1.3 * m.guide_mm))
+
+
+def test_interrupted_path_resumes_to_the_uninterrupted_answer(tiny_problem, tmp_path):
+    """Stop at 1 mm (its checkpoint on disk), go on to 2 mm from it: the same field as one solve from rest."""
+    checkpoint = tmp_path / "path.npz"
+    solve_resumable(tiny_problem, 1.0, 5.0, checkpoint)
+    u, _ = solve_resumable(tiny_problem, 2.0, 5.0, checkpoint)
+    direct, _ = solve_case(tiny_problem, 2.0, 5.0)
+    np.testing.assert_allclose(u, direct, atol=1e-9 * np.abs(direct).max())
+    again, _ = solve_resumable(tiny_problem, 2.0, 5.0, checkpoint)  # finished: read back, not solved
+    np.testing.assert_array_equal(again, u)
