@@ -73,14 +73,16 @@ bench-service: $(STAMP)
 tradeoff: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid
 
+# The grid-convergence study (docs/convergence.*); resumable: run it again to go on.
 convergence: $(STAMP)
-	MKL_NUM_THREADS=2 $(PY) scripts/mesh_convergence.py
+	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py
 
 # The committed models/default from scratch: sweep, off-grid cases, fit. Each step resumes.
 default-model: $(STAMP)
 	$(PY) -m fem_offline sweep --scene fem_offline/scenes/default.toml --out $(RUNS)
 	$(PY) -m fem_offline cases --scene fem_offline/scenes/default.toml --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 24 --seed 0
-	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 32 --offgrid $(RUNS)/offgrid
+	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 40 --offgrid $(RUNS)/offgrid \
+	    --fe-error docs/convergence.json
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
 container-test:

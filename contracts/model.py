@@ -84,6 +84,21 @@ class Metrics(_Frozen):
     onnx_vs_float64_max_abs_mm: float
 
 
+class RegionAccuracy(_Frozen):
+    """Error bounds at one region, mm (max over points and cases)."""
+
+    surrogate_mm: float  # the model against its own mesh's FE, held-out cases (Table 3 + off-grid)
+    fe_discretisation_mm: float | None = None  # that FE against the converged estimate (GCI band); None: not measured
+    end_to_end_mm: float | None = None  # surrogate + discretisation: the model against the converged estimate
+
+
+class Accuracy(_Frozen):
+    """What a user's answer is off by, per region, and against what."""
+
+    reference: str
+    regions: dict[str, RegionAccuracy]  # markers, prostate_surface, all_nodes
+
+
 class SceneInfo(_Frozen):
     name: str
     sha256: str
@@ -156,6 +171,7 @@ class ModelManifest(_Frozen):
     envelope: Envelope
     onnx: OnnxInfo
     metrics: Metrics
+    accuracy: Accuracy
     timing: Timing
     versions: dict[str, str]
     regions: dict[str, int] = {}  # name -> node count; filled by the writer

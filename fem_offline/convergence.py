@@ -88,7 +88,7 @@ def probe_points(mesh, scene: Scene) -> dict[str, np.ndarray]:
     """The fixed reference points (mm) every level is evaluated at, taken from one mesh.
 
     markers (8, 3); prostate_surface (k, 3); interior (3, 3): the prostate's centroid and the points
-    5 mm and 10 mm in front of the tip along the guide axis.
+    5 mm and 10 mm in front of the tip along the guide axis; nodes (n_nodes, 3): every node.
     """
     names = mesh.tissue_names
     prostate = mesh.tets[mesh.tissue == names.index("prostate"), :4]
@@ -98,7 +98,7 @@ def probe_points(mesh, scene: Scene) -> dict[str, np.ndarray]:
     tip, axis = np.asarray(scene.guide.tip_mm), guide_mod.direction(scene.guide, 0.0)
     return {"markers": mesh.nodes[mesh.node_sets["markers"]],
             "prostate_surface": mesh.nodes[mesh.node_sets["prostate_surface"]],
-            "interior": np.stack([centroid, tip + 5.0 * axis, tip + 10.0 * axis])}
+            "interior": np.stack([centroid, tip + 5.0 * axis, tip + 10.0 * axis]), "nodes": mesh.nodes}
 
 
 def at_points(mesh, u: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -205,5 +205,7 @@ def analyse(raw: dict) -> dict:
                 "gci_mm": _summary(band), "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
+        band, mean = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio)
+        row["all_nodes"] = {"n_points": len(band), "mean_order": mean.order, "mean_kind": mean.kind, "gci_mm": _summary(band)}
         out["cases"][case] = row
     return out

@@ -35,6 +35,7 @@ def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
         "pca": m.pca.model_dump(include={"rank", "energy"}),
         "network": m.network.model_dump(include={"width", "depth", "activation"}),
         "fit": m.fit.model_dump(),
+        "accuracy": m.accuracy.model_dump(),
         "metrics": {"table3": metrics.table3_summary.model_dump(),
                     "offgrid": metrics.offgrid_summary.model_dump() if metrics.offgrid_summary else None,
                     "angle_floor_mm": metrics.angle_floor_mm},

@@ -25,7 +25,9 @@ def _parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="PCA + MLP on a sweep, exported to a model folder")
     f.add_argument("--snapshots", required=True, type=Path, help="a `fem_offline sweep` output folder")
     f.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
-    f.add_argument("--offgrid", type=Path, help="folder of `fem_offline solve` cases to evaluate on")
+    f.add_argument("--offgrid", type=Path, help="folder of `fem_offline cases` cases to evaluate on")
+    f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh (docs/convergence.json): "
+                   "the FE discretisation error, added to the surrogate's for the end-to-end bound")
     f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="PCA modes (default 16, the paper's)")
     f.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units per layer (default 60)")
     f.add_argument("--depth", type=number("--depth", int, minimum=1), default=1, help="hidden layers (default 1)")
@@ -44,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     options = FitOptions(rank=args.rank, width=args.width, depth=args.depth, max_iterations=args.iterations,
                          seed=args.seed, test_cases=tuple(args.test_case or PAPER_TEST_CASES))
     try:
-        manifest = fit(args.snapshots, args.out, options, offgrid=args.offgrid)
+        manifest = fit(args.snapshots, args.out, options, offgrid=args.offgrid, fe_error=args.fe_error)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -85,6 +85,51 @@ def evaluate(session, inputs: np.ndarray, reference: np.ndarray) -> list[folder.
     return rows
 
 
+REGIONS = ("markers", "prostate_surface", "all_nodes")
+
+
+def region_errors(session, inputs: np.ndarray, reference: np.ndarray, node_sets: dict) -> dict[str, float]:
+    """Largest nodal error (mm) of the ONNX model over the cases, in each region of REGIONS."""
+    worst = dict.fromkeys(REGIONS, 0.0)
+    for x, u in zip(inputs, reference):
+        err = np.linalg.norm(session.run(None, {"guide": x[None].astype(np.float32)})[0][0] - u, axis=1)
+        for name in REGIONS:
+            ids = node_sets.get(name, slice(None)) if name != "all_nodes" else slice(None)
+            worst[name] = max(worst[name], float(err[ids].max()))
+    return worst
+
+
+def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
+    """Per-region GCI band (mm) of the FE on `mesh`, max over the hard cases of a convergence study
+    (scripts/convergence_study.py's JSON), and a sentence saying what it is measured against."""
+    import json
+
+    study = json.loads(Path(path).read_text())["analysis"]
+    fine = study["levels"][-1]
+    if (fine["n_tets"], fine["n_nodes"]) != (len(mesh.tets), len(mesh.nodes)):
+        raise ValueError(f"--fe-error: {path}'s finest level has {fine['n_tets']} tets and {fine['n_nodes']} nodes, "
+                         f"the sweep's mesh {len(mesh.tets)} and {len(mesh.nodes)}: not the same mesh")
+    rows = study["cases"].values()
+    bands = {"markers": max(max(r["gci_vector_mm"] for r in row["markers"]) for row in rows),
+             "prostate_surface": max(max(row[f"surface_{z}"]["gci_mm"]["max"] for z in ("near_tip", "rest")) for row in rows),
+             "all_nodes": max(row["all_nodes"]["gci_mm"]["max"] for row in rows)}
+    levels = ", ".join(f"{lv['n_tets']:,}" for lv in study["levels"])
+    text = (f"FE discretisation: grid convergence index (Fs 1.25) of this mesh against the Richardson estimate from "
+            f"3 meshes ({levels} tets, size ratio {study['ratio']:.2f}), max over the cases {', '.join(study['cases'])}")
+    return bands, text
+
+
+def _accuracy(surrogate: dict[str, float], fe: tuple[dict[str, float], str] | None) -> folder.Accuracy:
+    if fe is None:
+        return folder.Accuracy(reference="the surrogate against the FE of its own mesh only; the FE discretisation "
+                               "error of that mesh is not measured for this model", regions={
+                                   k: folder.RegionAccuracy(surrogate_mm=v) for k, v in surrogate.items()})
+    bands, text = fe
+    return folder.Accuracy(reference=f"the converged estimate. {text}", regions={
+        k: folder.RegionAccuracy(surrogate_mm=v, fe_discretisation_mm=bands[k], end_to_end_mm=v + bands[k])
+        for k, v in surrogate.items()})
+
+
 def _versions() -> dict[str, str]:
     import onnx
     import onnxruntime
@@ -107,7 +152,7 @@ def _metrics(session, surrogate: Surrogate, data: Snapshots, test, inputs, offgr
 
 
 def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None = None,
-        progress: bool = True) -> folder.ModelManifest:
+        fe_error: Path | None = None, progress: bool = True) -> folder.ModelManifest:
     """Run the whole pipeline and write `out`; returns the manifest."""
     from tqdm import tqdm
 
@@ -117,11 +162,17 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     sweep = read_sweep(snapshots)
     data = snapshots_of(sweep)
     cases = read_offgrid(offgrid, len(sweep.mesh.nodes)) if offgrid is not None else None
+    fe = fe_discretisation(fe_error, sweep.mesh) if fe_error is not None else None
     test, inputs, rows = training_set(data, options.test_cases)
     with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
         surrogate = fit_surrogate(inputs, rows, options, progress=bar.update)
     onnx_bytes = surrogate.onnx_bytes()
-    metrics = _metrics(onnx_session(onnx_bytes), surrogate, data, test, inputs, cases)
+    session = onnx_session(onnx_bytes)
+    metrics = _metrics(session, surrogate, data, test, inputs, cases)
+    held_in, held_ref = data.inputs[test], data.displacement[test]
+    if cases is not None:
+        held_in, held_ref = np.concatenate([held_in, cases[0]]), np.concatenate([held_ref, cases[1]])
+    accuracy = _accuracy(region_errors(session, held_in, held_ref, sweep.mesh.node_sets), fe)
     s2 = surrogate.pca.singular_values**2
     m = sweep.manifest
     manifest = folder.ModelManifest(
@@ -143,6 +194,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         onnx=folder.OnnxInfo(opset=17, inputs={"guide": "float32 [batch, 2]", "nodes": "int64 [k], optional, empty = all"},
                              outputs={"displacement": "float32 [batch, k, 3] mm"}, basis_dtype="float32"),
         metrics=metrics,
+        accuracy=accuracy,
         timing=folder.Timing(pca_seconds=surrogate.pca_seconds, train_seconds=surrogate.info["seconds"],
                              total_seconds=time.perf_counter() - t_start),
         versions=_versions(),
@@ -158,4 +210,9 @@ def summary_line(manifest: folder.ModelManifest) -> str:
             f"e_r {m.table3_summary.e_r_percent:.3f} %")
     if m.offgrid_summary:
         line += f"; off-grid ({m.offgrid_summary.n_cases}): e_NN {m.offgrid_summary.e_nn_mm:.4f} mm"
-    return line + f"; onnx vs float64 {m.onnx_vs_float64_max_abs_mm:.2e} mm"
+    line += f"; onnx vs float64 {m.onnx_vs_float64_max_abs_mm:.2e} mm"
+    markers = manifest.accuracy.regions["markers"]
+    if markers.end_to_end_mm is not None:
+        line += (f"; end to end at the markers {markers.end_to_end_mm:.3f} mm (surrogate {markers.surrogate_mm:.4f} + "
+                 f"FE discretisation {markers.fe_discretisation_mm:.3f})")
+    return line

@@ -48,4 +48,19 @@ def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
                   *head, *_rows(m.offgrid), "",
                   f"Worst: e_NN {o.e_nn_mm:.4f} mm, α {o.alpha_deg:.3f}°, e_r {o.e_r_percent:.3f} %."]
     lines += ["", f"ONNX (float32) vs float64 numpy reference: max {m.onnx_vs_float64_max_abs_mm:.2e} mm.", ""]
+    lines += _accuracy_lines(manifest)
     return "\n".join(lines)
+
+
+def _mm(x: float | None) -> str:
+    return "not measured" if x is None else f"{x:.4f}"
+
+
+def _accuracy_lines(manifest: ModelManifest) -> list[str]:
+    """The end-to-end table: surrogate + FE discretisation, per region, and what it is measured against."""
+    acc = manifest.accuracy
+    lines = ["## End to end: against the converged physics", "", f"Measured against {acc.reference}.", "",
+             "| region | surrogate vs its FE (mm) | FE discretisation (mm) | end-to-end bound (mm) |", "|---|---|---|---|"]
+    for name, r in acc.regions.items():
+        lines.append(f"| {name} | {r.surrogate_mm:.4f} | {_mm(r.fe_discretisation_mm)} | {_mm(r.end_to_end_mm)} |")
+    return lines + [""]

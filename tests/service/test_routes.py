@@ -105,6 +105,8 @@ def test_model_summary(client, folder):
     assert m["name"] == "default" and m["envelope"] == folder.manifest.envelope.model_dump(mode="json")
     assert m["regions"]["markers"] == 8 and m["metrics"]["table3"]["e_nn_mm"] <= 0.01
     assert m["limits"] == {"max_points": 50, "max_body_bytes": 65536}
+    assert m["accuracy"] == folder.manifest.accuracy.model_dump(mode="json")  # the end-to-end bounds, per region
+    assert m["fit"]["rank"] == folder.manifest.pca.rank
 
 
 def test_mesh_endpoint_gives_nodes_and_surfaces(client, folder):

@@ -48,3 +48,13 @@ def test_default_model_subset_equals_full_decode():
     for region in ("markers", "prostate_surface"):
         ids = folder.regions[region]
         np.testing.assert_allclose(p.displacement(7.75, -5.0, ids), full[ids], atol=1e-5)
+
+
+def test_default_model_states_an_end_to_end_bound_no_smaller_than_its_parts():
+    """Against the converged estimate: surrogate error + FE discretisation band, per region, both measured."""
+    acc = read_model_folder(DEFAULT).manifest.accuracy
+    assert "converged estimate" in acc.reference
+    assert set(acc.regions) == {"markers", "prostate_surface", "all_nodes"}
+    for name, r in acc.regions.items():
+        assert r.fe_discretisation_mm is not None and r.fe_discretisation_mm > 0, name
+        assert r.end_to_end_mm >= r.surrogate_mm + r.fe_discretisation_mm - 1e-12, name

@@ -36,11 +36,19 @@ def test_held_out_metrics_are_recomputed_from_the_shipped_model(tiny_model, tiny
     folder = read_model_folder(tiny_model)
     predictor = Predictor(folder)
     sweep = read_sweep(tiny_sweep)
+    markers = sweep.mesh.node_sets["markers"]
+    at_markers = 0.0
     for row in folder.manifest.metrics.table3:
         i = np.flatnonzero((sweep.inputs[:, 0] == row.displacement_mm) & (sweep.inputs[:, 1] == row.angle_deg))[0]
         err = np.linalg.norm(predictor.displacement(*sweep.inputs[i]) - sweep.displacement[i], axis=1).max()
         assert err == pytest.approx(row.e_nn_mm, rel=1e-3, abs=1e-7)
         assert err < 0.01 * np.abs(sweep.displacement[i]).max()  # linear data: the fit is tight
+        at_markers = max(at_markers, np.linalg.norm(predictor.displacement(*sweep.inputs[i])[markers]
+                                                    - sweep.displacement[i][markers], axis=1).max())
+    acc = folder.manifest.accuracy.regions["markers"]
+    assert acc.surrogate_mm == pytest.approx(at_markers, rel=1e-5, abs=1e-9)
+    assert acc.fe_discretisation_mm is None and acc.end_to_end_mm is None  # no study given: said, not guessed
+    assert "not measured" in folder.manifest.accuracy.reference
 
 
 def test_zero_load_gives_exactly_zero_displacement(tiny_model):
