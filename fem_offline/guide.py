@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from contracts.guide import push_direction
+
 from contracts.tet10 import boundary_faces
 
 from .mirror import REFLECT
@@ -24,11 +26,8 @@ if TYPE_CHECKING:
 
 
 def direction(guide: Guide, angle_deg: float) -> np.ndarray:
-    """Unit push direction a(beta) (3,): axis rotated by beta about tilt_normal."""
-    a = np.asarray(guide.axis) / np.linalg.norm(guide.axis)
-    n = np.asarray(guide.tilt_normal) / np.linalg.norm(guide.tilt_normal)
-    b = np.deg2rad(angle_deg)
-    return a * np.cos(b) + np.cross(n, a) * np.sin(b)
+    """Unit push direction a(beta) (3,): axis rotated by beta about tilt_normal (contracts.guide)."""
+    return push_direction(guide.axis, guide.tilt_normal, angle_deg)
 
 
 def rounded_tip_weight(r_mm: np.ndarray, radius_mm: float) -> np.ndarray:

@@ -19,13 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contracts.guide import push_direction
 from contracts.model import ModelManifest
 
-# fem_offline/scene.py Guide's defaults; the service does not import fem_offline (a test checks they agree).
-DEFAULT_TIP_MM = (0.0, -14.0, 35.0)
-DEFAULT_AXIS = (0.0, 1.0, 0.0)
-DEFAULT_TILT_NORMAL = (0.0, 0.0, 1.0)
-DEFAULT_PATCH_RADIUS_MM = 6.0
 OFF_AXIS_MM = 0.1  # translation across a(beta) that is refused
 OFF_AXIS_DEG = 0.1  # rotation about any axis but n that is refused
 ROTATION_TOL = 1e-3  # |R^T R - I| and |det R - 1| above this: not a rotation matrix at all
@@ -44,17 +40,15 @@ class Guide:
 
     @classmethod
     def of(cls, manifest: ModelManifest) -> Guide:
-        """The guide of the scene the model was trained on (fem_offline's defaults where the scene left them out)."""
-        spec = manifest.scene.spec.get("guide") or {}
+        """The guide of the scene the model was trained on (the manifest holds the whole validated scene)."""
+        spec = manifest.scene.spec["guide"]
         unit = lambda v: np.asarray(v, dtype=np.float64) / np.linalg.norm(v)  # noqa: E731
-        return cls(np.asarray(spec.get("tip_mm", DEFAULT_TIP_MM), dtype=np.float64), unit(spec.get("axis", DEFAULT_AXIS)),
-                   unit(spec.get("tilt_normal", DEFAULT_TILT_NORMAL)),
-                   float(spec.get("patch_radius_mm", DEFAULT_PATCH_RADIUS_MM)))
+        return cls(np.asarray(spec["tip_mm"], dtype=np.float64), unit(spec["axis"]), unit(spec["tilt_normal"]),
+                   float(spec["patch_radius_mm"]))
 
     def direction(self, angle_deg: float) -> np.ndarray:
-        """Unit push direction a(beta)."""
-        b = np.deg2rad(angle_deg)
-        return self.axis * np.cos(b) + np.cross(self.tilt_normal, self.axis) * np.sin(b)
+        """Unit push direction a(beta) (contracts.guide)."""
+        return push_direction(self.axis, self.tilt_normal, angle_deg)
 
     def rotation(self, angle_deg: float) -> np.ndarray:
         """(3, 3) rotation by beta about the tilt normal (Rodrigues)."""

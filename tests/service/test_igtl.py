@@ -10,11 +10,12 @@ import pyigtl
 import pytest
 from fastapi.testclient import TestClient
 from pyigtl.messages import CRC64
-from .helpers import predict_json, prostate_point
 
 from service.browser import free_port
 from service.guide import Guide, OffAxisPose
 from service.igtl import POINTS_NAME, STATUS_NAME, Responder, read_message
+
+from .helpers import predict_json, prostate_point
 
 POSES = [(0.0, 0.0), (5.0, 3.0), (10.0, -10.0), (2.25, 7.5), (10.0, 10.0)]
 
@@ -45,14 +46,14 @@ def _ask(peer, matrix, device=POINTS_NAME):
     return reply
 
 
-def test_guide_defaults_are_fem_offlines():
+def test_guide_of_the_manifest_is_the_scenes_and_turns_as_fem_offlines(tiny_folder):
     from fem_offline.scene import Guide as SceneGuide
+    from fem_offline.scene import parse_scene
 
-    from service import guide
-
-    scene = SceneGuide()
-    assert (guide.DEFAULT_TIP_MM, guide.DEFAULT_AXIS, guide.DEFAULT_TILT_NORMAL, guide.DEFAULT_PATCH_RADIUS_MM) == (
-        tuple(scene.tip_mm), tuple(scene.axis), tuple(scene.tilt_normal), scene.patch_radius_mm)
+    manifest = tiny_folder.manifest
+    scene_guide, ours = parse_scene(manifest.scene.spec).guide, Guide.of(manifest)
+    np.testing.assert_array_equal(ours.tip_mm, scene_guide.tip_mm)
+    assert ours.patch_radius_mm == scene_guide.patch_radius_mm
     tilted = SceneGuide(axis=(0.0, 0.6, 0.8), tilt_normal=(1.0, 0.0, 0.0))
     ours = Guide(np.zeros(3), np.array([0.0, 0.6, 0.8]), np.array([1.0, 0.0, 0.0]), 6.0)
     for beta in (-10.0, 0.0, 7.0):
