@@ -3,11 +3,14 @@
 Three meshes whose every size is scaled by a constant ratio r (h_coarse = r h_medium = r^2 h_fine)
 give, for a scalar f with values f3, f2, f1 (coarse, medium, fine):
 
-    e32 = f3 - f2, e21 = f2 - f1
-    monotonic when e32 e21 > 0 (else oscillatory: no order can be observed)
-    observed order       p = ln(e32 / e21) / ln r
+    e32 = f3 - f2, e21 = f2 - f1, R = e21 / e32
+    0 < R < 1: monotonic convergence; R < 0: oscillatory; R >= 1: monotonic divergence
+    observed order       p = ln(1 / R) / ln r                      (monotonic convergence only)
     Richardson estimate  f_ext = f1 + (f1 - f2) / (r^p - 1)
-    GCI (fine, absolute) = Fs |f1 - f2| / (r^p - 1),  Fs = 1.25;  the same with (f2, f3) for the medium mesh
+    GCI (fine, absolute) = Fs |f1 - f2| / (r^q - 1),  Fs = 1.25,  q = min(p, P_FORMAL)
+Capping the order at the scheme's (P_FORMAL) keeps a lucky, too-high observed p from shrinking the
+band. Without monotonic convergence no order can be observed: the band is then Fs times the spread
+of the three values, a heuristic that says "not in the asymptotic range" rather than a bound.
 
 For a whole field (every point of the prostate surface) the order p of its mean is used at each
 point: GCI_i = Fs |u1_i - u2_i| / (r^p - 1), the error bound of the fine field at that point.
@@ -33,6 +36,7 @@ from .scene import Scene
 log = logging.getLogger(__name__)
 
 SAFETY = 1.25  # Roache's factor of safety for three-grid studies
+P_FORMAL = 2.0  # P2 tets: displacement error O(h^3) in L2 but O(h^2) pointwise near the guide's kinks
 NEAR_TIP_MM = 8.0  # the near-tip zone, reported apart from the rest
 
 
@@ -41,7 +45,7 @@ class Richardson:
     """One scalar on three meshes (coarse, medium, fine) and what they say about its converged value."""
 
     values: tuple[float, float, float]  # f3, f2, f1
-    kind: str  # "monotonic", "oscillatory" or "converged" (no change between the meshes)
+    kind: str  # "monotonic" (converging), "oscillatory", "divergent" or "converged" (no change)
     order: float  # observed p (nan unless monotonic)
     extrapolated: float  # Richardson estimate (nan unless monotonic)
     gci_fine: float  # absolute error band of the fine value, same unit as f
@@ -54,25 +58,27 @@ def richardson(coarse: float, medium: float, fine: float, ratio: float) -> Richa
     values = (float(coarse), float(medium), float(fine))
     if e21 == 0 and e32 == 0:
         return Richardson(values, "converged", np.nan, fine, 0.0, 0.0)
-    if e32 * e21 <= 0:
-        # no observed order: the band is the spread of the three values, with the safety factor
+    if e32 * e21 <= 0 or abs(e21) >= abs(e32):
         spread = SAFETY * (max(values) - min(values))
-        return Richardson(values, "oscillatory", np.nan, np.nan, spread, spread)
+        kind = "oscillatory" if e32 * e21 <= 0 else "divergent"
+        return Richardson(values, kind, np.nan, np.nan, spread, spread)
     p = float(np.log(e32 / e21) / np.log(ratio))
-    gain = ratio**p - 1.0
-    return Richardson(values, "monotonic", p, fine + (fine - medium) / gain,
+    gain = ratio ** min(p, P_FORMAL) - 1.0
+    return Richardson(values, "monotonic", p, fine + (fine - medium) / (ratio**p - 1.0),
                       SAFETY * abs(e21) / gain, SAFETY * abs(e32) / gain)
 
 
-def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: float) -> tuple[np.ndarray, Richardson]:
-    """Per-point error band of the fine field (k,) in mm, from the observed order of the mean |u|.
+def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: float,
+              order: Richardson | None = None) -> tuple[np.ndarray, Richardson]:
+    """Per-point error band of the fine field (k,) in mm, from one observed order for the whole field.
 
-    coarse, medium, fine: (k, 3) displacements at the same reference points. Where the mean is not
-    monotonic, the band is Fs times the largest pointwise spread of the three fields.
+    coarse, medium, fine: (k, 3) displacements at the same reference points. The order is `order`'s
+    if given (one order for every region of a case keeps their bands consistent), else that of the
+    field's mean |u|. Without monotonic convergence, the band is Fs times the larger pointwise change.
     """
-    mean = richardson(*(np.linalg.norm(u, axis=1).mean() for u in (coarse, medium, fine)), ratio)
+    mean = order or richardson(*(np.linalg.norm(u, axis=1).mean() for u in (coarse, medium, fine)), ratio)
     if mean.kind == "monotonic":
-        return SAFETY * np.linalg.norm(fine - medium, axis=1) / (ratio**mean.order - 1.0), mean
+        return SAFETY * np.linalg.norm(fine - medium, axis=1) / (ratio ** min(mean.order, P_FORMAL) - 1.0), mean
     spread = np.maximum(np.linalg.norm(fine - medium, axis=1), np.linalg.norm(medium - coarse, axis=1))
     return SAFETY * spread, mean
 
@@ -191,21 +197,23 @@ def analyse(raw: dict) -> dict:
     for case in fine["cases"]:
         u3, u2, u1 = (lv["cases"][case] for lv in (coarse, medium, fine))
         row = {"seconds": [lv["cases"][case]["seconds"] for lv in (coarse, medium, fine)]}
+        # one order per case, that of the mean |u| over every node, for every pointwise band below
+        nodes_band, order = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio)
+        row["all_nodes"] = {"n_points": len(nodes_band), "mean_order": order.order, "mean_kind": order.kind,
+                            "gci_mm": _summary(nodes_band)}
         for group in ("markers", "interior"):
             mags = [np.linalg.norm(u[group], axis=1) for u in (u3, u2, u1)]
-            band, _ = field_gci(u3[group], u2[group], u1[group], ratio)
+            band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order)
             row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g)}
                           for a, b, c, g in zip(*mags, band)]
         for zone, mask in (("near_tip", near), ("rest", ~near)):
             s3, s2, s1 = (u["prostate_surface"][mask] for u in (u3, u2, u1))
             mags = [np.linalg.norm(u, axis=1) for u in (s3, s2, s1)]
-            band, mean = field_gci(s3, s2, s1, ratio)
+            band, _ = field_gci(s3, s2, s1, ratio, order)
             row[f"surface_{zone}"] = {
-                "n_points": int(mask.sum()), "mean_order": mean.order, "mean_kind": mean.kind,
-                "gci_mm": _summary(band), "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
+                "n_points": int(mask.sum()), "gci_mm": _summary(band),
+                "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
-        band, mean = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio)
-        row["all_nodes"] = {"n_points": len(band), "mean_order": mean.order, "mean_kind": mean.kind, "gci_mm": _summary(band)}
         out["cases"][case] = row
     return out

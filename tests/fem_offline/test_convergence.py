@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from fem_offline.convergence import SAFETY, field_gci, richardson, scaled_scene, solve_resumable
+from fem_offline.convergence import P_FORMAL, SAFETY, field_gci, richardson, scaled_scene, solve_resumable
 from fem_offline.solve import solve_case
 
 
-@pytest.mark.parametrize("order", [1.0, 2.0, 3.0])
+@pytest.mark.parametrize("order", [1.0, 1.5, 2.0])
 def test_richardson_recovers_order_and_limit_of_an_exact_power_law(order):
     """f(h) = f0 + C h^p on h = r^2, r, 1: p and f0 come back exactly, and the fine GCI is Fs |f1 - f0|."""
     f0, c, r = 4.0, -0.3, 1.3
@@ -19,10 +19,19 @@ def test_richardson_recovers_order_and_limit_of_an_exact_power_law(order):
     assert out.gci_medium == pytest.approx(SAFETY * abs(f2 - f0), rel=1e-10)
 
 
-def test_oscillating_values_have_no_order_and_a_band_of_their_spread():
-    out = richardson(1.0, 1.2, 1.1, 1.3)
-    assert out.kind == "oscillatory" and np.isnan(out.order) and np.isnan(out.extrapolated)
-    assert out.gci_fine == pytest.approx(SAFETY * 0.2)
+def test_an_order_above_the_schemes_is_capped_in_the_band_not_in_the_estimate():
+    f0, r = 2.0, 1.3
+    f3, f2, f1 = (f0 + 0.5 * h**4 for h in (r**2, r, 1.0))
+    out = richardson(f3, f2, f1, r)
+    assert out.order == pytest.approx(4.0) and out.extrapolated == pytest.approx(f0)
+    assert out.gci_fine == pytest.approx(SAFETY * abs(f2 - f1) / (r**P_FORMAL - 1)) and out.gci_fine > SAFETY * abs(f1 - f0)
+
+
+@pytest.mark.parametrize(("values", "kind"), [((1.0, 1.2, 1.1), "oscillatory"), ((1.0, 1.1, 1.3), "divergent")])
+def test_without_monotonic_convergence_there_is_no_order_and_the_band_is_the_spread(values, kind):
+    out = richardson(*values, 1.3)
+    assert out.kind == kind and np.isnan(out.order) and np.isnan(out.extrapolated)
+    assert out.gci_fine == pytest.approx(SAFETY * (max(values) - min(values)))
 
 
 def test_field_band_is_the_pointwise_distance_to_the_limit():
