@@ -14,7 +14,14 @@ IMAGE ?= deform-service
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
 
+# pygalmesh (CGAL's labelled-image mesher, label-map scenes) builds against CGAL and Eigen headers.
+CGAL_DEBS := libcgal-dev libeigen3-dev
+
 system-deps:
+	@if ! dpkg -s $(CGAL_DEBS) >/dev/null 2>&1; then \
+	  echo "installing CGAL and Eigen headers for pygalmesh: $(CGAL_DEBS)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(CGAL_DEBS) >/dev/null; \
+	fi
 	@if ! ldconfig -p | grep -q libGLU.so.1 || ! ldconfig -p | grep -q libXcursor.so.1 \
 	   || ! ldconfig -p | grep -q libXft.so.2 || ! ldconfig -p | grep -q libXinerama.so.1; then \
 	  echo "installing gmsh's system libraries: $(GMSH_DEBS)"; \
