@@ -155,3 +155,13 @@ def write_label_map(path: str | Path, image: LabelImage) -> Path:
     else:
         raise ValueError(f"--out: {path.name}: use .nii, .nii.gz, .nrrd or .seg.nrrd")
     return path
+
+
+def source_of(spec) -> "LabelMapSource":
+    """What the sweep and model manifests record of a scene's label map (contracts.sweep.LabelMapSource)."""
+    from contracts.sweep import LabelMapSource
+
+    image = read_label_map(spec.path)
+    return LabelMapSource(file=Path(spec.path).name, sha256=file_sha256(spec.path), shape=image.labels.shape,
+                          spacing_mm=tuple(float(s) for s in image.spacing_mm), affine=image.affine.tolist(),
+                          labels=dict(spec.labels), background=spec.background, outside=list(spec.outside))
