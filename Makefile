@@ -9,7 +9,7 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 IMAGE ?= deform-service
 
-.PHONY: install serve test test-fast bench bench-service tradeoff convergence default-model container-test clean system-deps viewer-assets
+.PHONY: install serve test test-fast bench bench-service tradeoff convergence default-model container-test clean system-deps viewer-assets labelmesh
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -18,6 +18,9 @@ BROWSER_DEBS := chromium
 # three.js from npm (viewer/package-lock.json), copied where the service serves it; the copies are committed.
 VIEWER_VENDOR := service/static/viewer/vendor
 THREE := viewer/node_modules/three
+
+# pygalmesh (CGAL's labelled-image mesher, label-map scenes) builds against CGAL and Eigen headers.
+CGAL_DEBS := libcgal-dev libeigen3-dev
 
 system-deps:
 	@if ! ldconfig -p | grep -q libGLU.so.1 || ! ldconfig -p | grep -q libXcursor.so.1 \
@@ -87,6 +90,14 @@ default-model: $(STAMP)
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
 container-test:
 	bash scripts/container_test.sh $(IMAGE)
+
+# Label-map meshing (issue #14): CGAL's headers, then pygalmesh built against them (about 11 min).
+labelmesh: $(STAMP)
+	@if ! dpkg -s $(CGAL_DEBS) >/dev/null 2>&1; then \
+	  echo "installing CGAL and Eigen headers for pygalmesh: $(CGAL_DEBS)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(CGAL_DEBS) >/dev/null; \
+	fi
+	$(PY) -m pip install -q -e '.[labelmesh]'
 
 clean:
 	rm -rf $(VENV) build *.egg-info

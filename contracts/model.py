@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict
 from .envelope import Envelope
 from .files import read_manifest_json, sha256
 from .mesh import TetMesh, mesh_arrays, read_mesh
+from .sweep import LabelMapSource
 from .tet10 import outward_triangles
 
 MODEL_FORMAT = 2
@@ -174,6 +175,7 @@ class ModelManifest(_Frozen):
     accuracy: Accuracy
     timing: Timing
     versions: dict[str, str]
+    source: LabelMapSource | None = None  # the segmentation of a label-map scene (from the sweep's manifest)
     regions: dict[str, int] = {}  # name -> node count; filled by the writer
     files: dict[str, str] = {}  # name -> sha256; filled by the writer
 

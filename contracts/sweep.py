@@ -65,6 +65,19 @@ class Grid(_Frozen):
         return Envelope.of_grid(self.displacements_mm, self.angles_deg)
 
 
+class LabelMapSource(_Frozen):
+    """The segmentation a label-map scene's mesh was built from: which file, its grid and its label table."""
+
+    file: str
+    sha256: str
+    shape: tuple[int, int, int]
+    spacing_mm: tuple[float, float, float]
+    affine: list[list[float]]  # (4, 4) voxel index -> patient RAS mm
+    labels: dict[str, int]  # tissue -> label value
+    background: str  # tissue of label 0 ("" = outside)
+    outside: list[int]
+
+
 def snapshot_file(angle_index: int, displacement_index: int) -> str:
     """Path of a grid case's snapshot inside the sweep folder."""
     return f"{SNAPSHOTS}/a{angle_index:03d}_d{displacement_index:03d}.npz"
@@ -88,6 +101,7 @@ class SweepManifest(_Frozen):
     wall_seconds_this_run: float = 0.0
     errors: list[str] = []
     snapshots: list[SnapshotRecord] = []
+    source: LabelMapSource | None = None  # label-map scenes only
 
 
 def write_case(path: str | Path, displacement: np.ndarray, *, displacement_mm: float, angle_deg: float,

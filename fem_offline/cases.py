@@ -14,7 +14,8 @@ from contracts.envelope import Envelope
 from contracts.mesh import TetMesh
 
 from .scene import Scene
-from .solve import ConvergenceError, solve_case
+from .newton import ConvergenceError
+from .solve import solve_case
 
 log = logging.getLogger(__name__)
 

@@ -35,11 +35,38 @@ def rounded_tip_weight(r_mm: np.ndarray, radius_mm: float) -> np.ndarray:
     return np.cos(0.5 * np.pi * r_mm / radius_mm) ** 2
 
 
+def snap_tip(mesh: TetMesh, guide: Guide) -> tuple[int, float]:
+    """(node, distance mm): the node of the rectal wall's lumen surface nearest guide.tip_mm.
+
+    The lumen surface is the rectal wall's part of the mesh's exterior (the lumen is a hole).
+    """
+    if "rectal_wall" not in mesh.tissue_names:
+        raise ValueError("guide.snap_mm: the mesh has no rectal_wall tissue to snap the tip to")
+    ext, owner = boundary_faces(mesh.tets)
+    lumen = np.unique(ext[mesh.tissue[owner] == mesh.tissue_names.index("rectal_wall")])
+    if lumen.size == 0:
+        raise ValueError("guide.snap_mm: the rectal wall has no exterior (lumen) surface; is the lumen labelled outside?")
+    r = np.linalg.norm(mesh.nodes[lumen] - np.asarray(guide.tip_mm), axis=1)
+    return int(lumen[r.argmin()]), float(r.min())
+
+
+def tip(mesh: TetMesh, guide: Guide) -> np.ndarray:
+    """Centre of the pushed patch (3,): guide.tip_mm, or the lumen-surface node it snaps to (guide.snap_mm)."""
+    if guide.snap_mm is None:
+        return np.asarray(guide.tip_mm, dtype=np.float64)
+    node, dist = snap_tip(mesh, guide)
+    if dist > guide.snap_mm:
+        raise ValueError(f"guide.tip_mm: {list(guide.tip_mm)} is {dist:.2f} mm from the rectal wall's lumen surface "
+                         f"(nearest node {node} at {np.round(mesh.nodes[node], 2).tolist()}), more than "
+                         f"guide.snap_mm = {guide.snap_mm}")
+    return mesh.nodes[node]
+
+
 def patch(mesh: TetMesh, guide: Guide) -> tuple[np.ndarray, np.ndarray]:
     """Boundary nodes within patch_radius_mm of the tip (k,) and their rounded-tip weights (k,)."""
     ext, _ = boundary_faces(mesh.tets)
     wall = np.unique(ext)
-    r = np.linalg.norm(mesh.nodes[wall] - np.asarray(guide.tip_mm), axis=1)
+    r = np.linalg.norm(mesh.nodes[wall] - tip(mesh, guide), axis=1)
     radius = guide.patch_radius_mm
     inside = r < radius
     if not inside.any():

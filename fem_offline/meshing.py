@@ -1,4 +1,4 @@
-"""The mesh a scene describes: the gmsh phantom or a user's tet mesh, made P2, with its named node sets."""
+"""The mesh a scene describes: the gmsh phantom, a user's tet mesh or a label map's, made P2, with its named node sets."""
 
 from __future__ import annotations
 
@@ -15,6 +15,10 @@ def mesh_for_scene(scene: Scene) -> TetMesh:
     """Mesh the phantom with gmsh, or read the user's mesh; attach the named node sets."""
     if scene.mesh_file is not None:
         base = read_user_mesh(scene)
+    elif scene.label_map is not None:
+        from .labelmesh import mesh_label_map
+
+        base = from_vertices(*mesh_label_map(scene))
     else:
         from .phantom import build_phantom
 

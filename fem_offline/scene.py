@@ -11,7 +11,7 @@ import hashlib
 import json
 import tomllib
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -86,6 +86,37 @@ class UserMesh(_Strict):
     tags: dict[str, int]  # tissue name -> tag value
 
 
+class LabelMap(_Strict):
+    """A segmentation label map (NIfTI or NRRD, fem_offline.labelmap) and the tissue of each label value.
+
+    Voxels of label 0 are `background` tissue (adipose unless the scene says otherwise), or outside
+    the body when `background` is empty; voxels of an `outside` value (the rectal lumen, air) are
+    not meshed. Any other value in the image must be in `labels`.
+    """
+
+    path: Path
+    labels: dict[str, Annotated[int, Field(gt=0)]]  # tissue name -> label value
+    background: str = "adipose"  # tissue of label-0 voxels; "" = label 0 is outside the body
+    outside: tuple[Annotated[int, Field(gt=0)], ...] = ()
+    mesher: Literal["cgal", "ftetwild", "tetgen"] = "cgal"  # scripts/compare_meshers.py measures them
+
+    @model_validator(mode="after")
+    def _distinct(self) -> LabelMap:
+        values = list(self.labels.values())
+        if len(set(values)) != len(values):
+            raise ValueError(f"each tissue needs its own label value, got {self.labels}")
+        both = sorted(set(values) & set(self.outside))
+        if both:
+            raise ValueError(f"label values {both} are both tissue and outside")
+        return self
+
+    @property
+    def tissue_names(self) -> tuple[str, ...]:
+        """The tissues the label map can hold: the labelled ones, then the background."""
+        names = tuple(self.labels)
+        return names + ((self.background,) if self.background and self.background not in names else ())
+
+
 class Guide(_Strict):
     """Rigid needle-guide tip pushing the rectal wall (its geometry and prescribed field: guide.py).
 
@@ -98,6 +129,9 @@ class Guide(_Strict):
     axis: Vec3 = (0.0, 1.0, 0.0)
     tilt_normal: Vec3 = (0.0, 0.0, 1.0)
     patch_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
+    # When set, the tip snaps to the nearest node of the rectal wall's lumen surface, which must lie
+    # within snap_mm of it (guide.snap_tip). Label-map scenes default to SNAP_MM; the phantom's tip is exact.
+    snap_mm: Annotated[float, Field(gt=0, le=20)] | None = None
 
     @model_validator(mode="after")
     def _axes(self) -> Guide:
@@ -176,10 +210,14 @@ class Solver(_Strict):
     max_step_mm: Annotated[float, Field(gt=0, le=10)] = 0.25  # guide increment per load step
 
 
+SNAP_MM = 2.0  # default guide.snap_mm of a label-map scene: about two voxels of a clinical T2 segmentation
+
+
 class Scene(_Strict):
     name: str = "scene"
     phantom: Phantom | None = Phantom()
     mesh_file: UserMesh | None = None
+    label_map: LabelMap | None = None
     tissues: dict[str, Tissue]
     guide: Guide = Guide()
     effects: Effects = Effects()
@@ -187,9 +225,30 @@ class Scene(_Strict):
     mesh: MeshSize = MeshSize()
     solver: Solver = Solver()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _file_geometry_defaults(cls, data):
+        """A mesh-file or label-map scene has no phantom; a label map's guide tip snaps to the lumen surface by default."""
+        if not isinstance(data, dict):
+            return data
+        if data.get("mesh_file") is not None or data.get("label_map") is not None:
+            data = {**data, "phantom": data.get("phantom")}
+        if data.get("label_map") is not None:
+            guide = data.get("guide", {})
+            if isinstance(guide, dict) and "snap_mm" not in guide:
+                data["guide"] = {**guide, "snap_mm": SNAP_MM}
+        return data
+
     @model_validator(mode="after")
     def _geometry_source(self) -> Scene:
-        if self.mesh_file is not None:
+        sources = [n for n in ("phantom", "mesh_file", "label_map") if getattr(self, n) is not None]
+        if len(sources) > 1:
+            raise ValueError(f"give one geometry source, not {' and '.join(sources)}")
+        if self.label_map is not None:
+            missing = set(self.label_map.tissue_names) - set(self.tissues)
+            if missing:
+                raise ValueError(f"label_map names tissues not in [tissues]: {sorted(missing)}")
+        elif self.mesh_file is not None:
             missing = set(self.mesh_file.tags) - set(self.tissues)
             if missing:
                 raise ValueError(f"mesh_file.tags names tissues not in [tissues]: {sorted(missing)}")
@@ -201,10 +260,18 @@ class Scene(_Strict):
 
     def sha256(self) -> str:
         """Hash of the validated scene (canonical JSON), recorded with every artifact."""
-        blob = json.dumps(self.model_dump(mode="json"), sort_keys=True).encode()
+        data = self.model_dump(mode="json")
+        # Fields added later are left out while unset, so the scenes, sweeps and models made before
+        # them keep their hashes.
+        for section, key in _LATER_FIELDS:
+            parent = data if section is None else data[section]
+            if parent.get(key) is None:
+                parent.pop(key, None)
+        blob = json.dumps(data, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()
 
 
+_LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"))
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")
 
 
@@ -230,9 +297,10 @@ def load_scene(path: str | Path, **overrides) -> Scene:
         raise SceneError(f"{path}: no such scene file") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{path}: not valid TOML ({exc})") from None
-    if "mesh_file" in data and "path" in data["mesh_file"]:
-        mesh_path = Path(data["mesh_file"]["path"])
-        data["mesh_file"]["path"] = str(mesh_path if mesh_path.is_absolute() else path.parent / mesh_path)
-        data.setdefault("phantom", None)
+    for section in ("mesh_file", "label_map"):
+        if isinstance(data.get(section), dict) and "path" in data[section]:
+            file = Path(data[section]["path"])
+            data[section]["path"] = str(file if file.is_absolute() else path.parent / file)
+            data.setdefault("phantom", None)
     data.update(overrides)
     return parse_scene(data, source=str(path))

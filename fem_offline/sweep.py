@@ -28,6 +28,7 @@ from contracts.mesh import TetMesh, read_mesh, write_mesh
 
 from .continuation import PathState, solve_path
 from .guide import is_mirrored
+from .labelmap import source_of
 from .linear import linear_modes, superpose
 from .meshing import mesh_for_scene
 from .mirror import mirror_map, reflect
@@ -72,6 +73,8 @@ def prepare(scene: Scene, out: Path) -> TetMesh:
         old = folder.read_manifest(out)
         if old.scene_sha256 != scene.sha256():
             raise SceneError(f"{out} holds a sweep of another scene (sha256 {old.scene_sha256[:12]}); use a new --out")
+        if old.source is not None and old.source.sha256 != sha256(scene.label_map.path):
+            raise SceneError(f"{out} holds a sweep of another label map (sha256 {old.source.sha256[:12]}); use a new --out")
     mesh_path = out / folder.MESH_FILE
     if mesh_path.exists():
         return read_mesh(mesh_path)
@@ -221,9 +224,9 @@ def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str
     t0 = time.perf_counter()
     errors: list[str] = []
     with tqdm(total=total, initial=total - n_pending, unit="snap", desc=scene.name) as progress:
-        if not scene.effects.geometric_nonlinearity:
+        if not scene.effects.geometric_nonlinearity and n_pending:
             _write_linear(scene, mesh, out, [c for p in pending for c in p], progress)
-        elif n_pending:
+        elif scene.effects.geometric_nonlinearity and n_pending:
             image, twins = _mirror_pairs(scene, mesh, paths)
             # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
             todo = [full for i, (full, p) in enumerate(zip(paths, pending)) if p and i not in twins]
@@ -243,6 +246,7 @@ def write_manifest(scene: Scene, mesh: TetMesh, out: Path, paths, *, seconds: fl
         mesh_sha256=sha256(out / folder.MESH_FILE), n_nodes=len(mesh.nodes), n_tets=len(mesh.tets),
         nonlinear=scene.effects.geometric_nonlinearity, grid=grid_, envelope=grid_.envelope,
         n_expected=sum(len(p) for p in paths), n_done=len(rows), n_mirrored=sum(r.mirrored_from is not None for r in rows),
-        wall_seconds_this_run=seconds, errors=errors, snapshots=rows)
+        wall_seconds_this_run=seconds, errors=errors, snapshots=rows,
+        source=source_of(scene.label_map) if scene.label_map is not None else None)
     folder.write_manifest(out, manifest)
     return manifest

@@ -39,6 +39,7 @@ def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
         "metrics": {"table3": metrics.table3_summary.model_dump(),
                     "offgrid": metrics.offgrid_summary.model_dump() if metrics.offgrid_summary else None,
                     "angle_floor_mm": metrics.angle_floor_mm},
+        "source": m.source.model_dump() if m.source else None,  # the segmentation a label-map model was built from
         "limits": {"max_points": settings.max_points, "max_body_bytes": settings.max_body_bytes},
     }
     mesh_json = orjson.dumps({"nodes": nodes32, "tissues": m.mesh.tissues, "surfaces": folder.surfaces},

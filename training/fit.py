@@ -198,6 +198,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         timing=folder.Timing(pca_seconds=surrogate.pca_seconds, train_seconds=surrogate.info["seconds"],
                              total_seconds=time.perf_counter() - t_start),
         versions=_versions(),
+        source=m.source,
     )
     report = table3_markdown(manifest, PAPER_TABLE3)
     return folder.write_model_folder(out, onnx_bytes=onnx_bytes, mesh=sweep.mesh, manifest=manifest, report=report)

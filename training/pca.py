@@ -9,7 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import logging
+
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,10 @@ def fit_pca(x: np.ndarray, rank: int) -> Pca:
     order = np.argsort(eigval)[::-1]
     eigval, eigvec = np.clip(eigval[order], 0.0, None), eigvec[:, order]
     s = np.sqrt(eigval)
+    numerical = int((s > 1e-9 * s[0]).sum())  # a linear sweep's f = u / d spans 2 modes, whatever rank is asked
+    if rank > numerical:
+        log.warning("rank %d asked for, the snapshots span %d modes: using %d", rank, numerical, numerical)
+        rank = numerical
     basis = (eigvec[:, :rank] / s[:rank]).T @ xc  # (rank, 3 n_nodes)
     # One Gram-Schmidt pass removes the round-off the S^-1 scaling leaves in weak modes.
     q, r = np.linalg.qr(basis.T)

@@ -1,0 +1,80 @@
+"""pipeline build: a label map and a short scene file in, a model folder the service serves out."""
+
+import json
+
+import numpy as np
+import pytest
+
+from contracts.files import sha256
+from fem_offline.labelmap import write_label_map
+from fem_offline.labelmap_phantom import LABELS, labelmap_scene, voxelise
+from fem_offline.scene import load_scene
+
+SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offline" / "scenes"
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """The tiny phantom voxelised at 1 mm, a linear 3 x 4 sweep, 2 off-grid cases: the whole build."""
+    pytest.importorskip("pygalmesh", reason="label-map meshing needs pygalmesh: `make labelmesh` (CGAL; not in CI, an 11-min compile)")
+    import tomli_w
+
+    from pipeline.build import BuildOptions, build
+
+    folder = tmp_path_factory.mktemp("build")
+    tiny = load_scene(SCENES / "tiny.toml")
+    write_label_map(folder / "labels.nrrd", voxelise(tiny.phantom, 1.0))
+    data = labelmap_scene(tiny, "labels.nrrd", name="patient_tiny")
+    data["effects"]["geometric_nonlinearity"] = False
+    (folder / "scene.toml").write_text(tomli_w.dumps(data))
+    lines = []
+    model = build(folder / "scene.toml", folder / "models" / "patient_tiny", work=folder / "work",
+                  options=BuildOptions(offgrid_cases=2, workers=1), say=lines.append)
+    return folder, model, lines
+
+
+def test_build_writes_a_model_that_records_its_label_map(built):
+    folder, model, lines = built
+    assert model.source is not None
+    assert model.source.sha256 == sha256(folder / "labels.nrrd")
+    assert model.source.labels == LABELS and model.source.spacing_mm == (1.0, 1.0, 1.0)
+    assert model.source.shape == (100, 80, 90)
+    assert model.metrics.offgrid_summary.n_cases == 2
+    assert lines[0].startswith("[1/3]") and "whole build" in lines[-1]
+
+
+def test_surrogate_matches_its_own_linear_fe(built):
+    """A linear sweep spans 2 modes in f = u / d (to round-off); PCA keeps those above 1e-9 of the first
+    instead of the 32 asked. The network learns cos/sin beta from three angles: held-out e_NN
+    measured 0.005-0.031 mm over runs (CGAL's mesh differs slightly from run to run), off the grid 0.014 mm."""
+    _, model, _ = built
+    assert model.pca.rank < 8 and model.pca.energy > 1 - 1e-12
+    assert model.metrics.offgrid_summary.e_nn_mm < 0.1
+    assert model.metrics.table3_summary.e_nn_mm < 0.1
+
+
+def test_service_serves_it_and_reports_the_source(built):
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    folder, model, _ = built
+    with TestClient(create_app(Settings(model=folder / "models" / "patient_tiny"))) as client:
+        info = client.get("/model").json()
+        assert info["source"]["sha256"] == model.source.sha256 and info["source"]["labels"] == LABELS
+        r = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 0.0, "region": "markers"})
+        assert r.status_code == 200, r.text
+        assert np.linalg.norm(np.asarray(r.json()["displacements"]), axis=1).max() > 0.05
+
+
+def test_rerun_resumes_without_solving_again(built):
+    from pipeline.build import BuildOptions, build
+
+    folder, model, _ = built
+    lines = []
+    again = build(folder / "scene.toml", folder / "models" / "patient_tiny", work=folder / "work",
+                  options=BuildOptions(offgrid_cases=2, workers=1), say=lines.append)
+    sweep = json.loads((folder / "work" / "sweep" / "manifest.json").read_text())
+    assert sweep["wall_seconds_this_run"] < 1.0  # nothing left to solve
+    assert again.mesh == model.mesh
