@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 
@@ -14,24 +15,32 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m service", description=__doc__)
     for name, field in Settings.model_fields.items():
+        shown = "none" if field.repr is False or field.default in (None, []) else field.default
         ap.add_argument(f"--{name.replace('_', '-')}", dest=name, help=f"{field.description or name} "
-                        f"(env DEFORM_{name.upper()}, default {field.default})")
+                        f"(env DEFORM_{name.upper()}, default {shown})")
     args = {k: v for k, v in vars(ap.parse_args(argv)).items() if v is not None}
     try:
         settings = Settings(**args)
         from .app import create_app
 
-        app = create_app(settings)
+        app = create_app(settings)  # also checks the model folder before any worker starts
     except ValidationError as exc:
         for err in exc.errors():
-            print(f"error: --{'.'.join(map(str, err['loc'])).replace('_', '-')}: {err['msg']}", file=sys.stderr)
+            where = ".".join(map(str, err["loc"])).replace("_", "-")
+            print(f"error: {'--' + where + ': ' if where else ''}{err['msg']}", file=sys.stderr)
         return 2
     except ModelError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     import uvicorn
 
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=settings.log_level)
+    if settings.workers > 1:
+        # Each worker process builds its own app from the environment: hand it the flags as DEFORM_* variables.
+        os.environ.update({f"DEFORM_{name.upper()}": value for name, value in args.items()})
+        app = "service.app:create_app"
+    uvicorn.run(app, factory=settings.workers > 1, workers=settings.workers, host=settings.host, port=settings.port,
+                log_level=settings.log_level, access_log=settings.access_log == "text",
+                ssl_certfile=settings.ssl_certfile, ssl_keyfile=settings.ssl_keyfile)
     return 0
 
 

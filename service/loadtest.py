@@ -87,6 +87,17 @@ def local_service(*flags: str, cwd: Path | None = None, wait_s: float = 30.0):
         server.wait(10)
 
 
+def batch_counts(url: str) -> tuple[float, float]:
+    """(batches, requests batched) so far, from the service's /metrics (one worker's, if it has several)."""
+    text = urllib.request.urlopen(f"{url}/metrics", timeout=10).read().decode()
+    values = {}
+    for line in text.splitlines():
+        name, _, value = line.partition(" ")
+        if name in ("predict_batch_size_count", "predict_batch_size_sum"):
+            values[name] = float(value)
+    return values.get("predict_batch_size_count", 0.0), values.get("predict_batch_size_sum", 0.0)
+
+
 def _bodies(envelope: dict, region: str | None, n: int, seed: int) -> list[bytes]:
     rng = np.random.default_rng(seed)
     (d0, d1), (a0, a1) = envelope["displacement_mm"], envelope["angle_deg"]
