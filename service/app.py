@@ -92,7 +92,12 @@ def add_middleware(app: FastAPI, settings: Settings) -> None:
         app.add_middleware(http.Cors, origins=settings.cors_origins)
     if settings.access_log == "json":
         app.add_middleware(JsonAccessLog, logger=json_lines_logger())
-    app.add_middleware(PredictMetrics, metrics=app.state.metrics)
+    app.add_middleware(PredictMetrics, metrics=app.state.metrics, served_paths=partial(served_paths, app))
+
+
+def served_paths(app: FastAPI) -> frozenset[str]:
+    """The paths the app answers (those in its OpenAPI schema, and the docs): the label values of error metrics."""
+    return frozenset(app.openapi()["paths"]) | frozenset(DOCS_PATHS)
 
 
 __all__ = ["create_app", "ModelError"]

@@ -4,13 +4,14 @@ batch size; error replies of every other path by path and status."""
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 
 LATENCY_BUCKETS = (0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.04, 0.1, 0.25, 1.0)
 QUEUE_BUCKETS = (0.00005, 0.0001, 0.00025, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25)
 BATCH_BUCKETS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
-OTHER_PATH = "other"  # the path label of a reply no route matched: label values stay bounded
+OTHER_PATH = "other"  # the path label of a reply to a path the app does not serve: label values stay bounded
 # request.state keys the /predict handler sets once it knows them (the request's target and reply format)
 TARGET, FORMAT = "predict_target", "predict_format"
 
@@ -50,11 +51,12 @@ class PredictMetrics:
     """ASGI middleware: count every reply to `path`, whichever layer sent it (auth's 401 and 403, the
     rate limit's 429, the cap's 503, the body limit's 413, a 415, 422 or 406 from the app, a 500),
     labelled with the target and format the handler recorded in request.state ("invalid" and "json",
-    the error format, when it never got that far). Error replies of other paths are counted by the
-    matched route's path ("other" when none matched, or auth replied first) and status."""
+    the error format, when it never got that far). Error replies of other paths are counted by path
+    (one of `served_paths()`, read at the first error, else "other") and status."""
 
-    def __init__(self, app, *, metrics: Metrics, path: str = "/predict"):
-        self.app, self.metrics, self.path = app, metrics, path
+    def __init__(self, app, *, metrics: Metrics, served_paths: Callable[[], frozenset[str]], path: str = "/predict"):
+        self.app, self.metrics, self.path, self.served_paths = app, metrics, path, served_paths
+        self._served: frozenset[str] | None = None
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
@@ -75,6 +77,6 @@ class PredictMetrics:
                 self.metrics.observe(target=state.get(TARGET, "invalid"), fmt=state.get(FORMAT, "json"),
                                      status=status, seconds=time.perf_counter() - t0)
             elif status >= 400:
-                route = scope.get("route")  # set by the router on this scope when a route matched
-                path = getattr(route, "path", None) or OTHER_PATH
+                self._served = self._served if self._served is not None else self.served_paths()
+                path = scope["path"] if scope["path"] in self._served else OTHER_PATH
                 self.metrics.errors.labels(path, str(status)).inc()

@@ -9,20 +9,7 @@ import numpy as np
 import pytest
 
 from service.batching import Batcher, QueueFull
-from service.info import model_info
-from service.model import Predictor, read_model_folder
 from service.predict import plan, predict, predict_batch
-from service.schemas import predict_request_model
-
-
-@pytest.fixture(scope="module")
-def predictor(settings):
-    return Predictor(read_model_folder(settings.model))
-
-
-@pytest.fixture(scope="module")
-def request_model(settings, predictor):
-    return predict_request_model(model_info(predictor.folder, settings), settings.max_points)
 
 
 def test_a_batch_of_different_requests_gives_each_its_own_answer(predictor, request_model):
@@ -124,7 +111,7 @@ def test_a_full_queue_refuses_at_once():
     assert asyncio.run(scenario()) == ["running", 0, 1]
 
 
-def test_concurrent_http_requests_are_batched_and_the_queue_time_is_in_metrics(settings):
+def test_concurrent_http_requests_are_batched_and_the_queue_time_is_in_metrics(settings, predictor):
     from service.app import create_app
 
     app = create_app(settings.model_copy(update={"batching": True, "batch_max_size": 8}))
@@ -139,7 +126,6 @@ def test_concurrent_http_requests_are_batched_and_the_queue_time_is_in_metrics(s
             return replies, (await client.get("/metrics")).text
 
     replies, metrics = asyncio.run(scenario())
-    predictor = Predictor(read_model_folder(settings.model))
     for (d, a), r in zip(guides, replies):
         assert r.status_code == 200
         got = np.frombuffer(r.content, dtype="<f4").reshape(-1, 3)
