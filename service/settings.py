@@ -32,7 +32,7 @@ class Settings(BaseSettings):
 
     # Dynamic batching (service/batching.py): requests that arrive together decode in one onnxruntime call.
     batching: bool = Field(True, description="decode concurrent requests with the same node set together")
-    batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 16
+    batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 8
     batch_max_delay_ms: Annotated[float, Field(ge=0, le=100, description=(
         "how long a batch may wait to fill after its first request, ms, when the last batch had company"))] = 0.5
     max_pending: Annotated[int, Field(ge=1, le=100_000, description=(
