@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
+import tempfile
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,13 +36,23 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import uvicorn
 
+    from .metrics import MULTIPROCESS_DIR
+
+    metrics_dir = None
     if settings.workers > 1:
-        # Each worker process builds its own app from the environment: hand it the flags as DEFORM_* variables.
+        # Each worker process builds its own app from the environment: hand it the flags as DEFORM_* variables,
+        # and a folder where the workers' metrics meet.
+        metrics_dir = tempfile.mkdtemp(prefix="deform-metrics-")
         os.environ.update({f"DEFORM_{name.upper()}": value for name, value in args.items()})
+        os.environ[MULTIPROCESS_DIR] = metrics_dir
         app = "service.app:create_app"
-    uvicorn.run(app, factory=settings.workers > 1, workers=settings.workers, host=settings.host, port=settings.port,
-                log_level=settings.log_level, access_log=settings.access_log == "text",
-                ssl_certfile=settings.ssl_certfile, ssl_keyfile=settings.ssl_keyfile)
+    try:
+        uvicorn.run(app, factory=settings.workers > 1, workers=settings.workers, host=settings.host,
+                    port=settings.port, log_level=settings.log_level, access_log=settings.access_log == "text",
+                    ssl_certfile=settings.ssl_certfile, ssl_keyfile=settings.ssl_keyfile)
+    finally:
+        if metrics_dir:
+            shutil.rmtree(metrics_dir, ignore_errors=True)
     return 0
 
 

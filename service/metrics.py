@@ -3,10 +3,16 @@ batch size; error replies of every other path by path and status."""
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Callable
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
+from prometheus_client.multiprocess import MultiProcessCollector
+
+# Set by `python -m service` for more than one worker: each worker writes its values there, and
+# /metrics, whichever worker answers, reports the sum over all of them (prometheus_client's multiprocess mode).
+MULTIPROCESS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 
 LATENCY_BUCKETS = (0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.04, 0.1, 0.25, 1.0)
 QUEUE_BUCKETS = (0.00005, 0.0001, 0.00025, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25)
@@ -44,6 +50,10 @@ class Metrics:
         self.latency.labels(target).observe(seconds)
 
     def text(self) -> bytes:
+        if os.environ.get(MULTIPROCESS_DIR):
+            merged = CollectorRegistry()
+            MultiProcessCollector(merged)
+            return generate_latest(merged)
         return generate_latest(self.registry)
 
 

@@ -47,13 +47,24 @@ class Tally:
 
 
 def service_process(port: int):
-    """The psutil process listening on `port` (this machine), or SystemExit naming the port."""
+    """The `python -m service` process listening on `port` (this machine), or SystemExit naming the port.
+
+    With several workers the listening socket is seen in one worker: its parent is the one wanted.
+    """
     import psutil
 
     for conn in psutil.net_connections(kind="tcp"):
         if conn.status == psutil.CONN_LISTEN and conn.laddr.port == port and conn.pid:
-            return psutil.Process(conn.pid)
+            process = psutil.Process(conn.pid)
+            while (parent := process.parent()) is not None and _runs_service(parent):
+                process = parent
+            return process
     raise SystemExit(f"error: no process of this machine listens on port {port} (or it is not visible; pass --pid)")
+
+
+def _runs_service(process) -> bool:
+    command = process.cmdline()
+    return any(a == "-m" and b == "service" for a, b in zip(command, command[1:]))
 
 
 def usage(process) -> tuple[float, int]:

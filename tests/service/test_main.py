@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import shutil
 import ssl
 import subprocess
@@ -85,7 +86,15 @@ def test_the_access_log_can_be_switched_off():
     assert "GET /healthz" not in out + err and "Uvicorn running" in out + err  # logging works; no request lines
 
 
-def test_worker_processes_read_the_flags():
+def test_workers_read_the_flags_and_metrics_add_up_over_them():
+    body = json.dumps({"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers"}).encode()
     with _serve("--workers", "2", "--max-points", "7", "--access-log", "off") as (url, _):
         limits = [json.loads(urllib.request.urlopen(f"{url}/model", timeout=10).read())["limits"] for _ in range(4)]
+        for _ in range(12):  # a new connection each: they land on either worker
+            urllib.request.urlopen(urllib.request.Request(
+                f"{url}/predict", data=body, headers={"content-type": "application/json"}), timeout=10).read()
+        texts = [urllib.request.urlopen(f"{url}/metrics", timeout=10).read().decode() for _ in range(6)]
     assert all(limit["max_points"] == 7 for limit in limits)
+    counts = {float(re.search(r'predict_requests_total{format="json",region="markers",status="200"} (\S+)', t).group(1))
+              for t in texts}
+    assert counts == {12.0}  # every scrape, whichever worker answers it, counts both workers' requests
