@@ -220,47 +220,58 @@ def model_for_mix(url: str, auth: dict, seed: int = 0) -> dict:
 
 def run(url: str, *, duration_s: float, clients: int, slow_clients: int, warmup_s: float, process,
         token: str | None = None, seed: int = 0) -> dict:
-    """Soak the service; returns every figure scripts/soak.py prints."""
+    """Soak the service; returns every figure scripts/soak.py prints.
+
+    A warm-up with the same traffic comes first, and its clients leave before the start figures are
+    read: the first requests open files that stay open (prometheus_client's files with several
+    workers) and grow onnxruntime's buffers, and that is not what a leak looks like.
+    """
     host, port = loopback(url)
     auth = {"authorization": f"Bearer {token}"} if token else {}
     rng = random.Random(seed)
     model = model_for_mix(url, auth, seed)
-    cold = usage(process)
-    tally, stop = Tally(), threading.Event()
     mixes = [requests_mix(model, random.Random(rng.random()), 400, 0.05, 0.01) for _ in range(clients)]
-    threads = [threading.Thread(target=client, args=(host, port, mixes[i], tally, stop, auth), daemon=True)
-               for i in range(clients)]
-    threads += [threading.Thread(target=slow_client, args=(host, port, mixes[i % clients], tally, stop, auth, seed + i),
+    cold = usage(process)
+    _traffic(host, port, mixes, slow_clients, auth, seed, duration_s=warmup_s, process=process)
+    start = _settle(process)
+    tally, samples, wall_s, left = _traffic(host, port, mixes, slow_clients, auth, seed,
+                                            duration_s=min(duration_s, MAX_DURATION_S), process=process)
+    return {"wall_s": wall_s, "tally": tally, "cold": cold, "start": start, "end": _settle(process, start[1]),
+            "samples": samples, "clients_left": left}
+
+
+def _traffic(host: str, port: int, mixes: list, slow_clients: int, auth: dict, seed: int, *, duration_s: float,
+             process) -> tuple[Tally, list, float, int]:
+    """Run the clients, slow clients and /healthz poller for `duration_s`, sampling the service's usage every
+    10 s; then stop them all. Returns the tally, the (seconds, MB, fds) samples, the wall time and how many
+    client threads failed to stop."""
+    tally, stop = Tally(), threading.Event()
+    t_start = time.perf_counter()
+    threads = [threading.Thread(target=client, args=(host, port, mix, tally, stop, auth), daemon=True) for mix in mixes]
+    threads += [threading.Thread(target=slow_client, args=(host, port, mixes[i % len(mixes)], tally, stop, auth, seed + i),
                                  daemon=True) for i in range(slow_clients)]
+    threads.append(threading.Thread(target=health_poller, args=(host, port, tally, stop, t_start), daemon=True))
     for t in threads:
         t.start()
-    stop.wait(warmup_s)  # to a steady state: onnxruntime's buffers, the thread pool, the connections
-    with tally.lock:
-        tally.latencies_ms.clear()
-        tally.statuses.clear()
-        tally.slow.clear()
-    start, t_start = usage(process), time.perf_counter()
-    poller = threading.Thread(target=health_poller, args=(host, port, tally, stop, t_start), daemon=True)
-    poller.start()
-    samples = [(0.0, *start)]
-    deadline = t_start + min(duration_s, MAX_DURATION_S)
+    samples, deadline = [], t_start + duration_s
     while (left := deadline - time.perf_counter()) > 0:
         stop.wait(min(10.0, left))
         samples.append((time.perf_counter() - t_start, *usage(process)))
     wall_s = time.perf_counter() - t_start
     stop.set()
-    for t in [*threads, poller]:
+    for t in threads:
         t.join(40)
-    settled = _settle(process, cold[1], wait_s=30.0)
-    return {"wall_s": wall_s, "tally": tally, "cold": cold, "start": start, "end": settled, "samples": samples,
-            "clients_left": sum(t.is_alive() for t in threads)}
+    return tally, samples, wall_s, sum(t.is_alive() for t in threads)
 
 
-def _settle(process, fds_baseline: int, wait_s: float) -> tuple[float, int]:
-    """Usage once the service has closed the clients' sockets (or after `wait_s`)."""
-    deadline = time.monotonic() + wait_s
+def _settle(process, fds_target: int | None = None, wait_s: float = 30.0) -> tuple[float, int]:
+    """Usage once the service has closed the clients' sockets: when the descriptors reach `fds_target`,
+    or (without one) hold still for a second; at most `wait_s`."""
+    deadline, last = time.monotonic() + wait_s, None
     while True:
         now = usage(process)
-        if now[1] <= fds_baseline or time.monotonic() > deadline:
+        done = now[1] <= fds_target if fds_target is not None else last is not None and now[1] == last[1]
+        if done or time.monotonic() > deadline:
             return now
-        time.sleep(0.5)
+        last = now
+        time.sleep(1.0 if fds_target is None else 0.5)
