@@ -22,6 +22,8 @@ USER deform
 ENV PATH=/opt/venv/bin:$PATH DEFORM_HOST=0.0.0.0 DEFORM_PORT=8000 DEFORM_MODEL=/app/models/default
 # 18944: OpenIGTLink, served only with DEFORM_IGTL=true
 EXPOSE 8000 18944
+# Every DEFORM_* variable given to `docker run -e` / `podman run -e` reaches the service's settings; the
+# health check reads the same settings (port, TLS).
 HEALTHCHECK --interval=10s --timeout=3s --start-period=15s --retries=3 \
-  CMD ["python", "-c", "import os, sys, urllib.request; port = os.environ['DEFORM_PORT']; sys.exit(urllib.request.urlopen(f'http://127.0.0.1:{port}/readyz', timeout=2).status != 200)"]
+  CMD ["python", "-m", "service.healthcheck"]
 CMD ["python", "-m", "service"]

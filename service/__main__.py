@@ -6,7 +6,10 @@
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import sys
+import tempfile
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -23,24 +26,42 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m service", description=__doc__)
     for name, field in Settings.model_fields.items():
+        shown = "none" if field.repr is False or field.default in (None, []) else field.default
         ap.add_argument(f"--{name.replace('_', '-')}", dest=name, help=f"{field.description or name} "
-                        f"(env DEFORM_{name.upper()}, default {field.default})")
+                        f"(env DEFORM_{name.upper()}, default {shown})")
     args = {k: v for k, v in vars(ap.parse_args(argv)).items() if v is not None}
     try:
         settings = Settings(**args)
         from .app import create_app
 
-        app = create_app(settings)
+        app = create_app(settings)  # also checks the model folder before any worker starts
     except ValidationError as exc:
         for err in exc.errors():
-            print(f"error: --{'.'.join(map(str, err['loc'])).replace('_', '-')}: {err['msg']}", file=sys.stderr)
+            where = ".".join(map(str, err["loc"])).replace("_", "-")
+            print(f"error: {'--' + where + ': ' if where else ''}{err['msg']}", file=sys.stderr)
         return 2
     except (ModelError, IgtlError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     import uvicorn
 
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=settings.log_level)
+    from .metrics import MULTIPROCESS_DIR
+
+    metrics_dir = None
+    if settings.workers > 1:
+        # Each worker process builds its own app from the environment: hand it the flags as DEFORM_* variables,
+        # and a folder where the workers' metrics meet.
+        metrics_dir = tempfile.mkdtemp(prefix="deform-metrics-")
+        os.environ.update({f"DEFORM_{name.upper()}": value for name, value in args.items()})
+        os.environ[MULTIPROCESS_DIR] = metrics_dir
+        app = "service.app:create_app"
+    try:
+        uvicorn.run(app, factory=settings.workers > 1, workers=settings.workers, host=settings.host,
+                    port=settings.port, log_level=settings.log_level, access_log=settings.access_log == "text",
+                    ssl_certfile=settings.ssl_certfile, ssl_keyfile=settings.ssl_keyfile)
+    finally:
+        if metrics_dir:
+            shutil.rmtree(metrics_dir, ignore_errors=True)
     return 0
 
 

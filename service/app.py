@@ -4,18 +4,24 @@ from __future__ import annotations
 
 import logging
 from contextlib import asynccontextmanager
+from functools import partial
 
 from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import http
-from .docs import add_offline_docs
+from .access_log import JsonAccessLog, json_lines_logger
+from .auth import BearerAuth
+from .batching import Batcher
+from .docs import DOCS_PATHS, STATIC, add_offline_docs
 from .igtl import igtl_server
 from .info import model_info
+from .limits import PendingLimit, RateLimit
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, read_model_folder
-from .routes import predict_router, router
+from .predict import predict_batch
+from .routes import HEALTH_PATHS, predict_router, router
 from .schemas import field_hints, predict_request_model
 from .settings import Settings
 from .viewer import viewer_router
@@ -35,7 +41,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        app.state.predictor = Predictor(folder, threads=settings.threads)
+        predictor = Predictor(folder, threads=settings.threads)
+        if settings.batching:
+            app.state.batcher = Batcher(partial(predict_batch, predictor), max_batch=settings.batch_max_size,
+                                        max_delay_s=settings.batch_max_delay_ms / 1e3, max_queue=settings.max_pending,
+                                        observe=app.state.metrics.observe_batch)
+            app.state.batcher.start()
+        app.state.predictor = predictor
         log.info("model %s loaded: %d nodes", info.name, len(folder.nodes))
         if igtl is not None:
             igtl.start(app.state.predictor)
@@ -43,6 +55,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if igtl is not None:
             igtl.stop()
         app.state.predictor = None
+        if app.state.batcher is not None:
+            await app.state.batcher.stop()
+            app.state.batcher = None
 
     app = FastAPI(
         title="Prostate deformation service",
@@ -53,12 +68,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,  # add_offline_docs serves /docs and /redoc without a CDN
         redoc_url=None,
     )
-    app.state.predictor = None
+    app.state.predictor = app.state.batcher = None
     app.state.info = info
     app.state.metrics = Metrics()
     app.state.field_hints = field_hints(info, settings.max_points)
-    app.add_middleware(http.BodyLimit, max_bytes=settings.max_body_bytes)
-    app.add_middleware(PredictMetrics, metrics=app.state.metrics)  # outside BodyLimit: counts its 413s too
     app.add_exception_handler(RequestValidationError, http.invalid_request)
     app.add_exception_handler(StarletteHTTPException, http.http_problem)
     app.add_exception_handler(OutsideMesh, http.outside_mesh)
@@ -66,7 +79,33 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(router)
     app.include_router(viewer_router())
     add_offline_docs(app)
+    add_middleware(app, settings)
     return app
+
+
+def add_middleware(app: FastAPI, settings: Settings) -> None:
+    """The layers around the routes, outermost first: metrics, access log, CORS, auth, rate limit,
+    the cap on /predict requests, the body limit. The outer ones see (and count) the inner ones' replies."""
+    # Starlette wraps each added middleware around the ones before it: add innermost first.
+    app.add_middleware(http.BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(PendingLimit, max_pending=settings.max_pending)
+    if settings.rate_limit > 0:
+        app.add_middleware(RateLimit, rate=settings.rate_limit, burst=settings.rate_burst, exempt=HEALTH_PATHS)
+    if tokens := settings.tokens():
+        open_paths = HEALTH_PATHS | ({"/metrics"} if settings.public_metrics else set()) | (
+            set(DOCS_PATHS) if settings.public_docs else set())
+        app.add_middleware(BearerAuth, tokens=tokens, open_paths=frozenset(open_paths),
+                           open_prefixes=(STATIC + "/",) if settings.public_docs else ())
+    if settings.cors_origins:
+        app.add_middleware(http.Cors, origins=settings.cors_origins)
+    if settings.access_log == "json":
+        app.add_middleware(JsonAccessLog, logger=json_lines_logger())
+    app.add_middleware(PredictMetrics, metrics=app.state.metrics, served_paths=partial(served_paths, app))
+
+
+def served_paths(app: FastAPI) -> frozenset[str]:
+    """The paths the app answers (those in its OpenAPI schema, and the docs): the label values of error metrics."""
+    return frozenset(app.openapi()["paths"]) | frozenset(DOCS_PATHS)
 
 
 __all__ = ["create_app", "ModelError"]

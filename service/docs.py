@@ -10,6 +10,7 @@ from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 STATIC = "/docs-static"  # swagger-ui-bundle.js, swagger-ui.css, redoc.standalone.js, favicon.png
+DOCS_PATHS = ("/docs", "/redoc", "/openapi.json")  # and everything under STATIC
 
 
 def add_offline_docs(app: FastAPI) -> None:

@@ -1,4 +1,4 @@
-"""HTTP plumbing: the JSON response class, the one error reply, content negotiation and the body limit."""
+"""HTTP plumbing: the JSON response class, the one error reply, content negotiation, the body limit and CORS."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.middleware.cors import CORSMiddleware
 
 from .model import OutsideMesh
 
@@ -33,8 +34,8 @@ def error_reply(status: int, errors: Iterable[tuple[str, str, str]], headers: di
 class RequestProblem(HTTPException):
     """An error reply naming the part of the request that is wrong (a field, the body or a header)."""
 
-    def __init__(self, status: int, *, field: str, message: str, type: str):
-        super().__init__(status, detail=message)
+    def __init__(self, status: int, *, field: str, message: str, type: str, headers: dict | None = None):
+        super().__init__(status, detail=message, headers=headers)
         self.field, self.type = field, type
 
 
@@ -197,3 +198,21 @@ class BodyLimit:
     async def _too_large(self, scope, receive, send):
         reply = error_reply(413, [("body", f"request body over the limit of {self.max_bytes} bytes", "too_large")])
         await reply(scope, receive, send)
+
+
+class Cors(CORSMiddleware):
+    """Starlette's CORS middleware for an explicit list of origins; a refused preflight gets the house error format."""
+
+    def __init__(self, app, *, origins: list[str]):
+        super().__init__(app, allow_origins=origins, allow_methods=["GET", "POST"],
+                         allow_headers=["authorization", "content-type", "accept"],
+                         expose_headers=["X-Count", "X-Layout", "Retry-After"])
+
+    def preflight_response(self, request_headers) -> Response:
+        reply = super().preflight_response(request_headers)
+        if reply.status_code == 200:
+            return reply
+        refused = reply.body.decode().removeprefix("Disallowed CORS ")  # origin, method, headers
+        headers = {k: v for k, v in reply.headers.items() if k.lower().startswith(("access-control", "vary"))}
+        return error_reply(400, [("origin", f"CORS preflight refused: {refused} not allowed "
+                                  f"(allowed origins: {', '.join(self.allow_origins)})", "cors_refused")], headers)

@@ -23,8 +23,6 @@ class OutsideMesh(ValueError):
         self.index, self.point = index, point
 
 
-
-
 class Predictor:
     """Decode displacements for all nodes, a region, or interior points."""
 
@@ -38,20 +36,33 @@ class Predictor:
     def manifest(self) -> ModelManifest:
         return self.folder.manifest
 
-    def displacement(self, displacement_mm: float, angle_deg: float, nodes: np.ndarray | None = None) -> np.ndarray:
-        """(k, 3) float32 displacement in mm of `nodes` (all nodes when None)."""
-        feed = {"guide": np.array([[displacement_mm, angle_deg]], dtype=np.float32)}
+    def decode(self, guides: np.ndarray, nodes: np.ndarray | None = None) -> np.ndarray:
+        """(batch, k, 3) float32 displacement in mm of `nodes` (all nodes when None) for each
+        [displacement_mm, angle_deg] row of `guides` (batch, 2): one onnxruntime call, one pass over the basis."""
+        feed = {"guide": np.asarray(guides, dtype=np.float32).reshape(-1, 2)}
         if nodes is not None:
             feed["nodes"] = np.asarray(nodes, dtype=np.int64)
-        return self.session.run(None, feed)[0][0]
+        return self.session.run(None, feed)[0]
 
-    def at_points(self, displacement_mm: float, angle_deg: float, points: np.ndarray) -> np.ndarray:
-        """(k, 3) displacement at reference points, interpolated with the containing tet's P2 shape functions."""
+    def displacement(self, displacement_mm: float, angle_deg: float, nodes: np.ndarray | None = None) -> np.ndarray:
+        """(k, 3) float32 displacement in mm of `nodes` (all nodes when None)."""
+        return self.decode(np.array([[displacement_mm, angle_deg]]), nodes)[0]
+
+    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The nodes that interpolate at `points`: (unique node ids, (k, 10) index into them, (k, 4) barycentric).
+
+        Raises OutsideMesh naming the first point that lies in no tet.
+        """
         tet, bary = self.locator.locate(points)
         if (tet < 0).any():
             first = int(np.flatnonzero(tet < 0)[0])
             raise OutsideMesh(first, np.asarray(points)[first].tolist())
         ids = self.folder.tets[tet]  # (k, 10)
         unique, inverse = np.unique(ids, return_inverse=True)
-        u = self.displacement(displacement_mm, angle_deg, unique)[inverse.reshape(ids.shape)]  # (k, 10, 3)
+        return unique, inverse.reshape(ids.shape), bary
+
+    def at_points(self, displacement_mm: float, angle_deg: float, points: np.ndarray) -> np.ndarray:
+        """(k, 3) displacement at reference points, interpolated with the containing tet's P2 shape functions."""
+        unique, inverse, bary = self.locate(points)
+        u = self.displacement(displacement_mm, angle_deg, unique)[inverse]  # (k, 10, 3)
         return interpolate(u, bary).astype(np.float32)

@@ -1,13 +1,23 @@
-"""One prediction, as arrays: no HTTP here (the routes turn it into a reply)."""
+"""Predictions as arrays, alone or batched: no HTTP here (the routes turn them into replies).
+
+A request becomes a `Query` (which nodes to decode, and how to turn their displacement into the
+answer); queries with the same node set decode together in one onnxruntime call, so the basis is
+read once per batch instead of once per request.
+"""
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
 
+from contracts.interpolate import interpolate
+
 from .model import Predictor
 from .schemas import PredictRequestBase
+
+ALL_NODES = "all"  # the batching key of a full-mesh query
 
 
 @dataclass(frozen=True)
@@ -18,21 +28,63 @@ class Prediction:
     node_ids: np.ndarray | None  # (k,) mesh node ids; for a region
 
 
+@dataclass(frozen=True)
+class Query:
+    """One request, planned: its guide, the nodes to decode and, for points, how to interpolate them."""
+
+    guide: tuple[float, float]  # displacement_mm, angle_deg
+    key: str  # the node set's identity: queries with equal keys decode in one call
+    nodes: np.ndarray | None  # (n,) node ids to decode; None for all nodes
+    region: str | None = None
+    points: np.ndarray | None = None  # (k, 3) float64 reference positions, mm
+    corners: np.ndarray | None = None  # (k, 10) index into `nodes` of each point's tet10 nodes
+    bary: np.ndarray | None = None  # (k, 4) barycentric coordinates of each point in its tet
+
+
+def plan(predictor: Predictor, request: PredictRequestBase) -> Query:
+    """What a validated request decodes. Locating points is the costly part (raises OutsideMesh)."""
+    guide = (request.displacement_mm, request.angle_deg)
+    if request.points is not None:
+        points = np.asarray(request.points, dtype=np.float64)
+        unique, corners, bary = predictor.locate(points)
+        # points with the same containing nodes (a viewer polling its targets) share a key
+        key = "points:" + hashlib.blake2b(unique.tobytes(), digest_size=16).hexdigest()
+        return Query(guide, key, unique, points=points, corners=corners, bary=bary)
+    if request.region is not None:
+        region = request.region.value
+        return Query(guide, f"region:{region}", predictor.folder.regions[region], region=region)
+    return Query(guide, ALL_NODES, None)
+
+
+def finish(predictor: Predictor, query: Query, u: np.ndarray) -> Prediction:
+    """The answer from the decoded displacement `u` (n, 3) of the query's nodes; may reuse `u`'s memory."""
+    if query.points is not None:
+        shown = interpolate(u[query.corners], query.bary).astype(np.float32)  # (k, 3)
+        return Prediction(None, shown + query.points.astype(np.float32), shown, None)
+    if query.region is not None:
+        shown = u.copy() if query.region == "markers" else None
+        return Prediction(query.region, np.add(u, predictor.nodes32[query.nodes], out=u), shown, query.nodes)
+    return Prediction(None, np.add(u, predictor.nodes32, out=u), None, None)  # in place: no copy
+
+
 def predict(predictor: Predictor, request: PredictRequestBase) -> Prediction:
     """Deformed positions for a validated request: all nodes, one region's nodes, or interpolated points.
 
     Raises OutsideMesh (from the predictor) naming the first point that lies in no tet.
     """
-    d, a = request.displacement_mm, request.angle_deg
-    if request.points is not None:
-        reference = np.asarray(request.points, dtype=np.float64)
-        u = predictor.at_points(d, a, reference)  # (k, 3) float32
-        return Prediction(None, u + reference.astype(np.float32), u, None)
-    if request.region is not None:
-        region = request.region.value
-        node_ids = predictor.folder.regions[region]
-        u = predictor.displacement(d, a, node_ids)
-        shown = u.copy() if region == "markers" else None
-        return Prediction(region, np.add(u, predictor.nodes32[node_ids], out=u), shown, node_ids)
-    u = predictor.displacement(d, a)
-    return Prediction(None, np.add(u, predictor.nodes32, out=u), None, None)  # in place: no copy
+    query = plan(predictor, request)
+    return finish(predictor, query, predictor.decode(np.array([query.guide]), query.nodes)[0])
+
+
+def predict_batch(predictor: Predictor, queries: list[Query]) -> list[Prediction]:
+    """The predictions of many queries: one onnxruntime call per node set among them, in their order."""
+    groups: dict[str, list[int]] = {}
+    for i, query in enumerate(queries):
+        groups.setdefault(query.key, []).append(i)
+    out: list[Prediction | None] = [None] * len(queries)
+    for members in groups.values():
+        first = queries[members[0]]
+        u = predictor.decode(np.array([queries[i].guide for i in members]), first.nodes)  # (batch, n, 3)
+        for row, i in enumerate(members):
+            out[i] = finish(predictor, queries[i], u[row])
+    return out

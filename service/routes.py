@@ -8,12 +8,13 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import PlainTextResponse, Response
 from starlette.concurrency import run_in_threadpool
 
+from .batching import Batcher, QueueFull
 from .export import EXPORT_CONTENT, ExportFormat, export_response
-from .http import BINARY, JsonBodyRoute, OrjsonResponse, reply_format
+from .http import BINARY, JsonBodyRoute, OrjsonResponse, RequestProblem, reply_format
 from .info import ModelInfo
 from .metrics import FORMAT, TARGET, Metrics
 from .model import Predictor
-from .predict import predict
+from .predict import Prediction, plan, predict
 from .schemas import ErrorReply, PredictReply, PredictRequestBase
 
 
@@ -22,6 +23,10 @@ async def get_predictor(request: Request) -> Predictor:
     if predictor is None:
         raise HTTPException(503, detail="model not loaded")
     return predictor
+
+
+async def get_batcher(request: Request) -> Batcher | None:
+    return request.app.state.batcher
 
 
 async def get_info(request: Request) -> ModelInfo:
@@ -34,8 +39,11 @@ async def get_metrics(request: Request) -> Metrics:
 
 # async: FastAPI would run a plain def dependency in the thread pool, a hop for a dict lookup
 PredictorDep = Annotated[Predictor, Depends(get_predictor)]
+BatcherDep = Annotated[Batcher | None, Depends(get_batcher)]  # None: batching is off
 InfoDep = Annotated[ModelInfo, Depends(get_info)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+
+HEALTH_PATHS = frozenset({"/healthz", "/readyz"})  # open even when auth is on, never rate-limited
 
 # The handlers below do no blocking work: async, so they run on the event loop without a thread hop.
 router = APIRouter()
@@ -73,7 +81,11 @@ async def metrics(m: MetricsDep) -> Response:
 
 def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model: str) -> Response:
     """The prediction for a request as JSON, or as raw little-endian float32 positions (count x 3)."""
-    prediction = predict(predictor, request)
+    return reply(request, predict(predictor, request), fmt=fmt, model=model)
+
+
+def reply(request: PredictRequestBase, prediction: Prediction, *, fmt: str, model: str) -> Response:
+    """A prediction as JSON, or as raw little-endian float32 positions (count x 3)."""
     positions = prediction.positions
     if fmt == "binary":
         # float32 arrays are little-endian on every platform onnxruntime ships for; no copy to bytes
@@ -95,9 +107,13 @@ PREDICT_RESPONSES = {
                          "with `?format=vtu|ply|glb` the deformed mesh as a file"},
     400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
     406: {"model": ErrorReply, "description": "the Accept header allows neither JSON nor application/octet-stream"},
+    401: {"model": ErrorReply, "description": "no bearer token (when the service requires one)"},
+    403: {"model": ErrorReply, "description": "the bearer token is not accepted"},
     413: {"model": ErrorReply, "description": "request body too large"},
     415: {"model": ErrorReply, "description": "the body is not sent as application/json"},
     422: {"model": ErrorReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"},
+    429: {"model": ErrorReply, "description": "over the client's rate limit; see Retry-After"},
+    503: {"model": ErrorReply, "description": "overloaded (too many requests in the service); see Retry-After"},
 }
 
 
@@ -111,7 +127,8 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
 
     @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
     async def predict_endpoint(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
-                               info: InfoDep, export: Annotated[ExportFormat | None, Query(alias="format", description=(
+                               batcher: BatcherDep, info: InfoDep,
+                               export: Annotated[ExportFormat | None, Query(alias="format", description=(
                                    "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file; "
                                    "with region or points, 422 (format_conflict)"))] = None):
         """Deformed positions for one guide displacement and angle.
@@ -131,6 +148,16 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
         setattr(request.state, FORMAT, fmt)
         # Decoding, locating points and serialising run in the thread pool: the event loop stays free
         # for /healthz and other requests meanwhile (onnxruntime and numpy release the GIL).
-        return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
+        if batcher is None:
+            return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
+        query = plan(predictor, body) if body.points is None else await run_in_threadpool(plan, predictor, body)
+        try:
+            prediction = await batcher.submit(query)  # decoded with whatever else waits for the same nodes
+        except QueueFull as exc:
+            raise RequestProblem(503, field="request", type="overloaded", message=f"overloaded: {exc}",
+                                 headers={"Retry-After": "1"}) from None
+        if fmt == "binary":
+            return reply(body, prediction, fmt=fmt, model=info.name)  # no copy, no work: not worth a thread hop
+        return await run_in_threadpool(reply, body, prediction, fmt=fmt, model=info.name)
 
     return predict_routes

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
-from pydantic import Field, FiniteFloat, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, FiniteFloat, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "default"
+# A comma-separated list in a flag or an env var (DEFORM_CORS_ORIGINS=https://a.org,https://b.org), not JSON.
+CommaList = Annotated[list[str], NoDecode]
 
 
 class Settings(BaseSettings):
@@ -24,6 +27,30 @@ class Settings(BaseSettings):
     max_points: Annotated[int, Field(ge=1, le=1_000_000, description="most points in one request")] = 10_000
     max_body_bytes: Annotated[int, Field(ge=1024, le=1 << 30, description="largest request body")] = 1 << 20
     log_level: str = "info"
+    # 2: on this 2-core machine, more throughput than 1 in every 8-client case with batching, and the same
+    # 1-client latency (scripts/bench_service.py, README)
+    workers: Annotated[int, Field(ge=1, le=64, description="uvicorn worker processes")] = 2
+    access_log: Literal["text", "json", "off"] = Field(
+        "text", description="one line per request: uvicorn's text, JSON lines on stdout, or none")
+
+    # Dynamic batching (service/batching.py): requests that arrive together decode in one onnxruntime call.
+    batching: bool = Field(True, description="decode concurrent requests with the same node set together")
+    batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 8
+    batch_max_delay_ms: Annotated[float, Field(ge=0, le=100, description=(
+        "how long a batch may wait to fill after its first request, ms, when the last batch had company"))] = 0.5
+    max_pending: Annotated[int, Field(ge=1, le=100_000, description=(
+        "most /predict requests in the service at once (decoding or waiting); more get 503"))] = 256
+
+    # Locked down when deployed; all off by default, so `make serve` on loopback stays one command.
+    auth_tokens: CommaList = Field([], repr=False, description="bearer tokens accepted, comma-separated")
+    auth_token_file: Path | None = Field(None, description="a file of bearer tokens, one a line (# comments)")
+    public_metrics: bool = Field(False, description="with tokens set, leave /metrics open")
+    public_docs: bool = Field(False, description="with tokens set, leave /docs, /redoc and /openapi.json open")
+    rate_limit: Annotated[float, Field(ge=0, description="requests per second per client; 0: no limit")] = 0.0
+    rate_burst: Annotated[int, Field(ge=1, description="requests a client may send at once above its rate")] = 20
+    cors_origins: CommaList = Field([], description="origins allowed to call the API from a browser, comma-separated")
+    ssl_certfile: Path | None = Field(None, description="TLS certificate (PEM); with ssl_keyfile, serve HTTPS")
+    ssl_keyfile: Path | None = Field(None, description="TLS private key (PEM)")
     # OpenIGTLink (service/igtl.py), off by default; it binds to `host` like the HTTP server
     igtl: Annotated[bool, Field(description="serve OpenIGTLink: NeedleGuide poses in, deformed points out")] = False
     igtl_port: Annotated[int, Field(ge=1, le=65535, description="OpenIGTLink port")] = 18944
@@ -59,3 +86,44 @@ class Settings(BaseSettings):
         if value.lower() not in {"critical", "error", "warning", "info", "debug", "trace"}:
             raise ValueError(f"unknown log level {value!r}")
         return value.lower()
+
+    @field_validator("auth_tokens", "cors_origins", mode="before")
+    @classmethod
+    def _comma_list(cls, value):
+        if isinstance(value, str):
+            return [item.strip() for item in value.split(",") if item.strip()]
+        return value
+
+    @field_validator("cors_origins")
+    @classmethod
+    def _origins(cls, value: list[str]) -> list[str]:
+        for origin in value:
+            if not re.fullmatch(r"https?://[^/*\s]+", origin):
+                raise ValueError(f"{origin!r} is not an origin: give each as scheme://host[:port], no wildcard")
+        return value
+
+    @field_validator("auth_token_file", "ssl_certfile", "ssl_keyfile")
+    @classmethod
+    def _readable(cls, value: Path | None) -> Path | None:
+        if value is not None and not value.is_file():
+            raise ValueError(f"{value} is not a file")
+        return value
+
+    @model_validator(mode="after")
+    def _pairs(self):
+        if (self.ssl_certfile is None) != (self.ssl_keyfile is None):
+            raise ValueError("give ssl_certfile and ssl_keyfile together")
+        if self.auth_token_file is not None and not read_tokens(self.auth_token_file):
+            raise ValueError(f"auth_token_file {self.auth_token_file} holds no token")
+        return self
+
+    def tokens(self) -> frozenset[str]:
+        """Every accepted bearer token: auth_tokens and the lines of auth_token_file; empty means no auth."""
+        from_file = read_tokens(self.auth_token_file) if self.auth_token_file else []
+        return frozenset([*self.auth_tokens, *from_file])
+
+
+def read_tokens(path: Path) -> list[str]:
+    """The tokens of a token file: one a line; blank lines and lines starting with # are skipped."""
+    lines = (line.strip() for line in path.read_text().splitlines())
+    return [line for line in lines if line and not line.startswith("#")]

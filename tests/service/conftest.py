@@ -43,3 +43,19 @@ def tiny_client(tiny_model):
 
     with TestClient(create_app(Settings(model=tiny_model))) as client:
         yield client
+
+
+@pytest.fixture(scope="session")
+def predictor(settings):
+    from service.model import Predictor, read_model_folder
+
+    return Predictor(read_model_folder(settings.model))
+
+
+@pytest.fixture(scope="session")
+def request_model(settings, predictor):
+    """The PredictRequest model the app builds from the default model's manifest."""
+    from service.info import model_info
+    from service.schemas import predict_request_model
+
+    return predict_request_model(model_info(predictor.folder, settings), settings.max_points)

@@ -1,4 +1,4 @@
-"""HTTP plumbing: the Accept header, the content type and the body limit."""
+"""HTTP plumbing: the Accept header, the content type, the body limit and CORS."""
 
 import pytest
 
@@ -84,3 +84,42 @@ def test_a_chunked_body_over_the_limit_gets_413(client):
     assert r.status_code == 413
     [err] = r.json()["detail"]
     assert err["field"] == "body" and "65536 bytes" in err["message"]
+
+
+ALLOWED = "https://viewer.example.org"
+
+
+@pytest.fixture(scope="module")
+def cors_client(settings):
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    with TestClient(create_app(settings.model_copy(update={"cors_origins": [ALLOWED]}))) as c:
+        yield c
+
+
+def _preflight(client, origin, method="POST", headers="content-type"):
+    return client.options("/predict", headers={"origin": origin, "access-control-request-method": method,
+                                               "access-control-request-headers": headers})
+
+
+def test_cors_allows_only_the_listed_origins(cors_client):
+    ok = _preflight(cors_client, ALLOWED, headers="authorization, content-type")
+    assert ok.status_code == 200 and ok.headers["access-control-allow-origin"] == ALLOWED
+    assert "POST" in ok.headers["access-control-allow-methods"]
+    refused = _preflight(cors_client, "https://evil.example.org")
+    assert refused.status_code == 400 and "access-control-allow-origin" not in refused.headers
+    assert refused.json()["detail"][0]["type"] == "cors_refused" and "origin" in refused.json()["detail"][0]["message"]
+    assert _preflight(cors_client, ALLOWED, method="DELETE").status_code == 400
+    r = cors_client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers"},
+                         headers={"origin": ALLOWED, "accept": "application/octet-stream"})
+    assert r.headers["access-control-allow-origin"] == ALLOWED and "X-Count" in r.headers["access-control-expose-headers"]
+    other = cors_client.get("/model", headers={"origin": "https://evil.example.org"})
+    assert other.status_code == 200 and "access-control-allow-origin" not in other.headers
+
+
+def test_no_cors_by_default(client):
+    r = client.get("/model", headers={"origin": ALLOWED})
+    assert "access-control-allow-origin" not in r.headers
+    assert _preflight(client, ALLOWED).status_code == 405  # no CORS layer answers the preflight

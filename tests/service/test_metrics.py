@@ -29,8 +29,20 @@ def test_the_middleware_labels_every_status_of_predict(status):
         await send({"type": "http.response.body", "body": b""})
 
     metrics = Metrics()
-    client = TestClient(PredictMetrics(app, metrics=metrics), raise_server_exceptions=False)  # no lifespan
+    client = TestClient(PredictMetrics(app, metrics=metrics, served_paths=frozenset), raise_server_exceptions=False)  # no lifespan
     client.post("/predict", content=b"{}")
     client.get("/healthz")  # another path: not counted
     text = metrics.text().decode()
     assert _count(text, str(status)) == 1
+
+
+def test_error_replies_of_other_paths_are_counted_by_path_and_status(client):
+    def count(path, status):
+        found = re.search(rf'http_errors_total{{path="{path}",status="{status}"}} (\S+)', client.get("/metrics").text)
+        return float(found.group(1)) if found else 0.0
+
+    before = count("/model", 405), count("other", 404)
+    client.post("/model")
+    client.get("/no-such-path-1")
+    client.get("/no-such-path-2")  # every unserved path shares one label
+    assert (count("/model", 405), count("other", 404)) == (before[0] + 1, before[1] + 2)

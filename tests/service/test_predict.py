@@ -3,20 +3,8 @@
 import numpy as np
 import pytest
 
-from service.info import model_info
-from service.model import OutsideMesh, Predictor, read_model_folder
+from service.model import OutsideMesh
 from service.predict import predict
-from service.schemas import predict_request_model
-
-
-@pytest.fixture(scope="module")
-def predictor(settings):
-    return Predictor(read_model_folder(settings.model))
-
-
-@pytest.fixture(scope="module")
-def request_model(settings, predictor):
-    return predict_request_model(model_info(predictor.folder, settings), settings.max_points)
 
 
 def test_region_gives_its_nodes_rows_of_the_full_decode(predictor, request_model):

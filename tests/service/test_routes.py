@@ -132,26 +132,29 @@ def test_docs_and_schema_state_the_ranges(client):
     assert req["angle_deg"]["minimum"] == -10.0 and client.get("/docs").status_code == 200
 
 
-def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch):
-    """The decode runs off the event loop: with one predict held inside predict(), /healthz still answers."""
+@pytest.mark.parametrize("batching", [False, True])
+def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch, batching):
+    """The decode runs off the event loop: with one predict held inside the decode, /healthz still answers."""
     import asyncio
     import threading
 
     import httpx
 
+    from service import app as app_module
     from service import routes
     from service.app import create_app
 
     entered, release = threading.Event(), threading.Event()
-    real_predict = routes.predict
+    module, name = (app_module, "predict_batch") if batching else (routes, "predict")
+    real = getattr(module, name)
 
-    def held_predict(predictor, request):
+    def held(*args):
         entered.set()
         release.wait(3)
-        return real_predict(predictor, request)
+        return real(*args)
 
-    monkeypatch.setattr(routes, "predict", held_predict)
-    app = create_app(settings)
+    monkeypatch.setattr(module, name, held)
+    app = create_app(settings.model_copy(update={"batching": batching}))
 
     async def scenario():
         async with app.router.lifespan_context(app), httpx.AsyncClient(

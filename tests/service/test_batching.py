@@ -1,0 +1,135 @@
+"""Dynamic batching: requests decoded together get exactly their own answers; the queue is bounded."""
+
+import asyncio
+import re
+import threading
+
+import httpx
+import numpy as np
+import pytest
+
+from service.batching import Batcher, QueueFull
+from service.predict import plan, predict, predict_batch
+
+
+def test_a_batch_of_different_requests_gives_each_its_own_answer(predictor, request_model):
+    """Full-mesh, region and point requests with different guides, decoded in one batch, equal their solo decodes."""
+    nodes = predictor.folder.nodes
+    inside = nodes[predictor.folder.tets[:6, :4]].mean(axis=1).tolist()  # tet centroids
+    requests = [request_model(displacement_mm=d, angle_deg=a, **extra) for d, a, extra in [
+        (5.0, 2.0, {}), (9.5, -7.0, {"region": "markers"}), (1.0, 3.0, {}), (5.0, 2.0, {"region": "prostate"}),
+        (7.25, -1.5, {"points": inside}), (3.0, 9.0, {"region": "markers"}), (10.0, -10.0, {}),
+        (2.0, 0.5, {"points": inside[:3]})]]
+    batched = predict_batch(predictor, [plan(predictor, r) for r in requests])
+    for request, got in zip(requests, batched):
+        solo = predict(predictor, request)
+        assert got.region == solo.region
+        if request.region is None and request.points is None:
+            np.testing.assert_array_equal(got.positions, solo.positions)  # the full mesh: bit for bit
+        else:  # a node subset: onnxruntime's Gemm may round the last bit differently in a batch
+            np.testing.assert_allclose(got.positions, solo.positions, rtol=0, atol=1e-5)
+        for name in ("displacements", "node_ids"):
+            a, b = getattr(got, name), getattr(solo, name)
+            assert (a is None) == (b is None) and (a is None or np.allclose(a, b, rtol=0, atol=1e-5))
+    # the full-mesh answers differ from one another by millimetres, so a swap would not pass the checks above
+    assert np.abs(batched[0].positions - batched[2].positions).max() > 1.0
+
+
+def test_requests_that_wait_together_run_as_one_batch_in_order():
+    calls, entered, release = [], threading.Event(), threading.Event()
+
+    def run_batch(items):
+        calls.append(list(items))
+        entered.set()
+        release.wait(5)
+        return [item * 10 for item in items]
+
+    async def scenario():
+        batcher = Batcher(run_batch, max_batch=4, max_delay_s=0.0, max_queue=16)
+        batcher.start()
+        first = asyncio.create_task(batcher.submit(0))
+        await asyncio.to_thread(entered.wait, 5)  # 0 is in the decode thread; the rest queue behind it
+        rest = [asyncio.create_task(batcher.submit(i)) for i in range(1, 7)]
+        await asyncio.sleep(0)
+        release.set()
+        results = await asyncio.gather(first, *rest)
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == [0, 10, 20, 30, 40, 50, 60]
+    assert calls == [[0], [1, 2, 3, 4], [5, 6]]  # at most max_batch each, in arrival order
+
+
+def test_a_lone_request_does_not_wait_for_the_delay():
+    """After a batch of one, the next request goes at once even with a 60 s delay configured."""
+    async def scenario():
+        batcher = Batcher(lambda items: items, max_batch=8, max_delay_s=60.0, max_queue=8)
+        batcher.start()
+        results = [await asyncio.wait_for(batcher.submit(i), 10) for i in range(3)]
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == [0, 1, 2]
+
+
+def test_after_a_busy_batch_the_next_waits_until_it_is_full():
+    """When the last batch had company, a batch waits (up to the delay) for more requests: here it fills up."""
+    calls = []
+
+    async def scenario():
+        batcher = Batcher(lambda items: calls.append(items) or items, max_batch=3, max_delay_s=60.0, max_queue=8)
+        batcher._last_size = 2  # as after a batch of two
+        batcher.start()
+        tasks = []
+        for i in range(3):
+            tasks.append(asyncio.create_task(batcher.submit(i)))
+            await asyncio.sleep(0.01)  # one at a time: without the wait, each would go alone
+        results = await asyncio.wait_for(asyncio.gather(*tasks), 10)
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == [0, 1, 2] and calls == [[0, 1, 2]]
+
+
+def test_a_full_queue_refuses_at_once():
+    release = threading.Event()
+
+    async def scenario():
+        batcher = Batcher(lambda items: release.wait(5) and items, max_batch=1, max_delay_s=0.0, max_queue=2)
+        batcher.start()
+        running = asyncio.create_task(batcher.submit("running"))
+        await asyncio.sleep(0.05)  # taken off the queue, held in the decode thread
+        queued = [asyncio.create_task(batcher.submit(i)) for i in range(2)]
+        await asyncio.sleep(0)
+        with pytest.raises(QueueFull):
+            await batcher.submit("one too many")
+        release.set()
+        results = await asyncio.gather(running, *queued)
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == ["running", 0, 1]
+
+
+def test_concurrent_http_requests_are_batched_and_the_queue_time_is_in_metrics(settings, predictor):
+    from service.app import create_app
+
+    app = create_app(settings.model_copy(update={"batching": True, "batch_max_size": 8}))
+    guides = [(d, a) for d, a in zip(np.linspace(0.5, 10, 12), np.linspace(-10, 10, 12))]
+
+    async def scenario():
+        async with app.router.lifespan_context(app), httpx.AsyncClient(
+                transport=httpx.ASGITransport(app=app), base_url="http://service") as client:
+            replies = await asyncio.gather(*[client.post(
+                "/predict", json={"displacement_mm": d, "angle_deg": a}, headers={"accept": "application/octet-stream"})
+                for d, a in guides])
+            return replies, (await client.get("/metrics")).text
+
+    replies, metrics = asyncio.run(scenario())
+    for (d, a), r in zip(guides, replies):
+        assert r.status_code == 200
+        got = np.frombuffer(r.content, dtype="<f4").reshape(-1, 3)
+        np.testing.assert_array_equal(got, predictor.displacement(d, a) + predictor.nodes32)
+    count = float(re.search(r"^predict_queue_seconds_count (\S+)", metrics, re.M).group(1))
+    batches = float(re.search(r"^predict_batch_size_count (\S+)", metrics, re.M).group(1))
+    assert count == len(guides) and batches < len(guides)  # every request queued; some shared a batch
