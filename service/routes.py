@@ -146,8 +146,8 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
                                            angle_deg=body.angle_deg, fmt=export, region=region, points=body.points)
         fmt = reply_format(request.headers.get("accept"))
         setattr(request.state, FORMAT, fmt)
-        # Decoding, locating points and serialising run in the thread pool: the event loop stays free
-        # for /healthz and other requests meanwhile (onnxruntime and numpy release the GIL).
+        # Decoding, locating points and serialising run off the event loop (the batcher's decode thread,
+        # the thread pool): it stays free for /healthz and other requests (onnxruntime and numpy release the GIL).
         if batcher is None:
             return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
         query = plan(predictor, body) if body.points is None else await run_in_threadpool(plan, predictor, body)

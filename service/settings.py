@@ -27,8 +27,9 @@ class Settings(BaseSettings):
     max_points: Annotated[int, Field(ge=1, le=1_000_000, description="most points in one request")] = 10_000
     max_body_bytes: Annotated[int, Field(ge=1024, le=1 << 30, description="largest request body")] = 1 << 20
     log_level: str = "info"
-    # 2: on this 2-core machine, more throughput than 1 in every 8-client case with batching, and the same
-    # 1-client latency (scripts/bench_service.py, README)
+    # 2: on this 2-core machine, with batching, more 8-client throughput than 1 worker for full-mesh
+    # replies at 312k nodes and JSON at 13k, less for small binary replies at 13k; the same 1-client
+    # latency (scripts/bench_service.py, README)
     workers: Annotated[int, Field(ge=1, le=64, description="uvicorn worker processes")] = 2
     access_log: Literal["text", "json", "off"] = Field(
         "text", description="one line per request: uvicorn's text, JSON lines on stdout, or none")
