@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.browser import drag, open_viewer, serve_process
+from service.browser import drag, open_viewer
+from service.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
 from service.viewer import region_cover
@@ -44,7 +45,7 @@ def main() -> None:
     ap.add_argument("--moves", type=int, default=200)
     args = ap.parse_args()
     folder = read_model_folder(args.model)
-    with serve_process(args.model) as url, open_viewer(url, watch=False) as (page, _):
+    with local_service("--model", str(args.model)) as url, open_viewer(url, watch=False) as (page, _):
         hi = page.evaluate("Number(document.getElementById('displacement').max)")
         values = np.round(np.linspace(0.0, hi, 41), 2)
         frames = drag(page, "displacement", values[np.arange(args.moves) % len(values)])

@@ -7,14 +7,12 @@ WebGL runs on SwiftShader (software), which headless chromium needs without a GP
 from __future__ import annotations
 
 import shutil
-import socket
-import subprocess
-import sys
 import threading
 import time
-import urllib.request
 from contextlib import contextmanager
 from typing import Iterator
+
+from .loadtest import free_port
 
 CHROMIUM = ("chromium", "chromium-browser")
 WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
@@ -23,12 +21,6 @@ WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 def find_chromium() -> str | None:
     """Path of a chromium on PATH (`make system-deps` installs Debian's), or None."""
     return next((path for path in map(shutil.which, CHROMIUM) if path), None)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @contextmanager
@@ -50,33 +42,6 @@ def serve_in_thread(app, *, timeout_s: float = 30.0) -> Iterator[str]:
     finally:
         server.should_exit = True
         thread.join(timeout_s)
-
-
-@contextmanager
-def serve_process(model, *, timeout_s: float = 60.0) -> Iterator[str]:
-    """Run `python -m service --model M` on a free loopback port, as deployed; yields its base URL."""
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    process = subprocess.Popen([sys.executable, "-m", "service", "--model", str(model), "--port", str(port),
-                                "--log-level", "warning"])
-    try:
-        deadline = time.monotonic() + timeout_s
-        while not _answers(f"{url}/readyz"):
-            if process.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"the service did not become ready (exit code {process.poll()})")
-            time.sleep(0.2)
-        yield url
-    finally:
-        process.terminate()
-        process.wait(timeout_s)
-
-
-def _answers(url: str) -> bool:
-    try:
-        with urllib.request.urlopen(url, timeout=1):
-            return True
-    except OSError:
-        return False
 
 
 @contextmanager

@@ -6,7 +6,7 @@ import sys
 
 from service.loadtest import free_port
 
-from .test_main import _serve, certificate  # noqa: F401 - the fixture
+from .test_main import _serve
 
 
 def _check(env: dict) -> int:
@@ -14,7 +14,7 @@ def _check(env: dict) -> int:
                           env={**os.environ, **env}).returncode
 
 
-def test_healthcheck_follows_port_and_tls(certificate):  # noqa: F811
+def test_healthcheck_follows_port_and_tls(certificate):
     cert, key = certificate
     import ssl
 
