@@ -1,11 +1,19 @@
 """The sweep folder: what fem_offline writes and training reads.
 
     manifest.json               SweepManifest: format, the full scene as parsed, grid, envelope,
-                                counts, one record per snapshot (with its sha256), errors
+                                counts, one record per snapshot (with its sha256), errors, and
+                                validity: which snapshots turn an element inside out
     mesh.npz                    the P2 mesh (contracts.mesh)
     snapshots/aIII_dJJJ.npz     one case: displacement (n_nodes, 3) float64 mm, displacement_mm,
                                 angle_deg and the solver's record (CaseRecord fields)
 A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus reference_positions.
+
+A snapshot with det(I + grad u) <= 0 at a quadrature point (min_det_f <= 0) is not a deformation: an
+element is inside out. The nonlinear solver never returns one; the linear model's superposition
+does once the guide pushes far enough. Such snapshots are written (they are the model's answer)
+but listed in `validity`, and training reads `valid_up_to_mm` from it. Folders written before the
+check have no `validity`: `sweep_validity` derives it from a nonlinear folder's records (the solver
+measured them) and refuses a linear one (its records say 1.0 without having measured).
 """
 
 from __future__ import annotations
@@ -83,6 +91,16 @@ def snapshot_file(angle_index: int, displacement_index: int) -> str:
     return f"{SNAPSHOTS}/a{angle_index:03d}_d{displacement_index:03d}.npz"
 
 
+class Validity(_Frozen):
+    """Where the snapshots stop being deformations: det(I + grad u) <= 0 at some quadrature point."""
+
+    min_det_f: float | None  # over every quadrature point of every snapshot; None: no snapshot yet
+    n_inverted: int
+    inverted: list[str] = []  # snapshot files with min_det_f <= 0, grid order
+    first_inverted_mm: list[float | None]  # per grid angle (grid.angles_deg order); None: none inverted
+    valid_up_to_mm: float  # the largest grid displacement up to which every angle's snapshots are valid (0: none)
+
+
 class SweepManifest(_Frozen):
     format_version: Literal[2] = SWEEP_FORMAT
     scene_name: str
@@ -102,6 +120,7 @@ class SweepManifest(_Frozen):
     errors: list[str] = []
     snapshots: list[SnapshotRecord] = []
     source: LabelMapSource | None = None  # label-map scenes only
+    validity: Validity | None = None  # None: written before det(I + grad u) was checked (see sweep_validity)
 
 
 def write_case(path: str | Path, displacement: np.ndarray, *, displacement_mm: float, angle_deg: float,
@@ -131,6 +150,32 @@ def snapshot_record(folder: Path, name: str) -> SnapshotRecord:
             angle_deg=float(z["angle_deg"]), newton_iterations=int(z["newton_iterations"]),
             residual=float(z["residual"]), min_det_f=float(z["min_det_f"]), seconds=float(z["seconds"]),
             mirrored_from=str(z["mirrored_from"]) if "mirrored_from" in z.files else None)
+
+
+def validity_of(grid: Grid, rows: list[SnapshotRecord]) -> Validity:
+    """Summarise the snapshots' min_det_f over the grid (the rows on disk; an unfinished sweep's part)."""
+    bad = [r for r in rows if not r.min_det_f > 0]  # NaN counts as inverted
+    first = [min((r.displacement_mm for r in bad if r.angle_deg == a), default=None) for a in grid.angles_deg]
+    return Validity(min_det_f=min((r.min_det_f for r in rows), default=None), n_inverted=len(bad),
+                    inverted=[r.file for r in bad], first_inverted_mm=first,
+                    valid_up_to_mm=valid_up_to_mm(grid.displacements_mm, [r.displacement_mm for r in bad]))
+
+
+def valid_up_to_mm(displacements_mm, inverted_mm) -> float:
+    """The largest grid displacement below every inverted one (all of the grid's if none; 0.0 if not even the first)."""
+    limit = min(inverted_mm, default=np.inf)
+    return float(max((d for d in displacements_mm if d < limit), default=0.0))
+
+
+def sweep_validity(manifest: SweepManifest) -> Validity:
+    """The manifest's validity; for a folder written before it was recorded, derived from a nonlinear
+    sweep's records, or ValueError for a linear one (its snapshots' min_det_f was never measured)."""
+    if manifest.validity is not None:
+        return manifest.validity
+    if not manifest.nonlinear:
+        raise ValueError("validity: this linear sweep was written before det(I + grad u) was checked (its snapshots "
+                         "record min_det_f 1.0 unmeasured); run `fem_offline sweep` again into a new folder")
+    return validity_of(manifest.grid, manifest.snapshots)
 
 
 def write_manifest(folder: str | Path, manifest: SweepManifest) -> Path:

@@ -50,6 +50,7 @@ def _parser() -> argparse.ArgumentParser:
 def _solve(args) -> None:
     from contracts import sweep as folder
 
+    from .linear import measured
     from .meshing import load_or_build_mesh
     from .problem import build_problem
     from .solve import solve_case
@@ -62,6 +63,7 @@ def _solve(args) -> None:
     mesh = load_or_build_mesh(scene, args.mesh)
     problem = build_problem(scene, mesh)
     u, stats = solve_case(problem, args.displacement_mm, args.angle_deg, step_mm=args.step_mm)
+    stats = measured(problem, u, stats)
     folder.write_case(args.out, u, displacement_mm=args.displacement_mm, angle_deg=args.angle_deg,
                       record=folder.CaseRecord(**stats.record()), reference_positions=mesh.nodes,
                       scene_sha256=scene.sha256())
@@ -69,6 +71,9 @@ def _solve(args) -> None:
         f"{args.out}: {len(mesh.nodes)} nodes, max |u| {np.linalg.norm(u, axis=1).max():.4f} mm, "
         f"{stats.iterations} Newton iterations, min det F {stats.min_det_f:.3f}, {stats.seconds:.1f} s"
     )
+    if not stats.min_det_f > 0:
+        print(f"warning: det(I + grad u) {stats.min_det_f:.3g} <= 0: the linear model turns an element inside out "
+              "at this displacement; the case is written but is not a deformation", file=sys.stderr)
 
 
 def _sweep(args) -> int:
@@ -78,9 +83,22 @@ def _sweep(args) -> int:
         raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
     manifest = run_sweep(load_scene(args.scene), args.out, workers=args.workers, scheduler=args.scheduler)
     print(f"{args.out}: {manifest.n_done}/{manifest.n_expected} snapshots, {manifest.wall_seconds_this_run:.1f} s this run")
+    if manifest.validity.n_inverted:
+        print(_inversion_warning(manifest), file=sys.stderr)
     for err in manifest.errors:
         print(f"failed: {err}", file=sys.stderr)
     return 1 if manifest.errors else 0
+
+
+def _inversion_warning(manifest) -> str:
+    """The sweep's warning for snapshots with det(I + grad u) <= 0 (SweepManifest.validity)."""
+    v = manifest.validity
+    firsts = sorted({d for d in v.first_inverted_mm if d is not None})
+    first = f"{firsts[0]:g} mm" if len(firsts) == 1 else f"{firsts[0]:g} to {firsts[-1]:g} mm depending on the angle"
+    return (f"warning: {v.n_inverted} of {manifest.n_done} snapshots turn an element inside out (det(I + grad u) <= 0, "
+            f"min {v.min_det_f:.3g}), the first at {first}. They are "
+            f"written, and listed under `validity` in manifest.json. Every angle is valid up to {v.valid_up_to_mm:g} mm; "
+            f"`training fit` fits and serves only that part.")
 
 
 def _cases(args) -> int:

@@ -13,8 +13,9 @@ from contracts import sweep as folder
 from contracts.envelope import Envelope
 from contracts.mesh import TetMesh
 
-from .scene import Scene
+from .linear import measured
 from .newton import ConvergenceError
+from .scene import Scene
 from .solve import solve_case
 
 log = logging.getLogger(__name__)
@@ -40,6 +41,10 @@ def solve_one(scene_json: str, mesh_path: str, out: str, index: int, d_mm: float
         u, stats = solve_case(problem, d_mm, angle_deg)
     except ConvergenceError as exc:
         return f"case {index} ({d_mm} mm, {angle_deg} deg): {exc}"
+    stats = measured(problem, u, stats)
+    if not stats.min_det_f > 0:
+        log.warning("case %d (%g mm, %g deg): det(I + grad u) %.3g <= 0, an element is inside out", index, d_mm,
+                    angle_deg, stats.min_det_f)
     folder.write_case(case_file(Path(out), index), u, displacement_mm=d_mm, angle_deg=angle_deg,
                       record=folder.CaseRecord(**stats.record()), reference_positions=problem.mesh.nodes,
                       scene_sha256=problem.scene.sha256())

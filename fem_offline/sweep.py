@@ -6,6 +6,8 @@ interrupted resumes from its last written snapshot; finished snapshots are never
 folder of another scene is refused.
 On a mirror-symmetric scene (mirror.py) only the paths with beta >= 0 are solved; each beta < 0
 snapshot is the reflection of its beta > 0 twin (marked `mirrored_from` in the file).
+A linear sweep writes every snapshot by superposition, inverted ones included (the manifest's
+`validity` lists those with det(I + grad u) <= 0 and the displacement up to which all angles are valid).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from contracts.mesh import TetMesh, read_mesh, write_mesh
 from .continuation import PathState, solve_path
 from .guide import is_mirrored
 from .labelmap import source_of
-from .linear import linear_modes, superpose
+from .linear import linear_modes, min_det_f, superpose
 from .meshing import mesh_for_scene
 from .mirror import mirror_map, reflect
 from .newton import ConvergenceError, Stats
@@ -75,6 +77,8 @@ def prepare(scene: Scene, out: Path) -> TetMesh:
             raise SceneError(f"{out} holds a sweep of another scene (sha256 {old.scene_sha256[:12]}); use a new --out")
         if old.source is not None and old.source.sha256 != sha256(scene.label_map.path):
             raise SceneError(f"{out} holds a sweep of another label map (sha256 {old.source.sha256[:12]}); use a new --out")
+        if old.validity is None and not old.nonlinear and old.snapshots:
+            raise SceneError(f"{out} holds linear snapshots written before det(I + grad u) was checked; use a new --out")
     mesh_path = out / folder.MESH_FILE
     if mesh_path.exists():
         return read_mesh(mesh_path)
@@ -129,13 +133,23 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
 
 
 def _write_linear(scene: Scene, mesh: TetMesh, out: Path, pending: list[Case], progress) -> None:
-    """Linear model: one factorisation, two unit solves, every snapshot by superposition."""
+    """Linear model: one factorisation, two unit solves, every snapshot by superposition.
+
+    Each snapshot records its true min det(I + grad u) over the assembled tets' quadrature points,
+    one cubic in d per angle (linear.min_det_f). An inverted snapshot (<= 0) is written all the
+    same: it is the linear model's answer, and the manifest's `validity` lists it.
+    """
     t0 = time.perf_counter()
-    modes = linear_modes(build_problem(scene, mesh))
+    problem = build_problem(scene, mesh)
+    modes = linear_modes(problem)
+    det = {}
+    for angle in sorted({c.angle_deg for c in pending}):
+        cases = [c for c in pending if c.angle_deg == angle]
+        det.update(zip(cases, min_det_f(problem, modes, [c.displacement_mm for c in cases], angle)))
     per = (time.perf_counter() - t0) / max(len(pending), 1)
     for case in pending:
         u = superpose(modes, case.displacement_mm, case.angle_deg)
-        write_snapshot(out, case, u, Stats(iterations=1, seconds=per))
+        write_snapshot(out, case, u, Stats(iterations=1, seconds=per, min_det_f=float(det[case])))
         progress.update(1)
 
 
@@ -247,6 +261,7 @@ def write_manifest(scene: Scene, mesh: TetMesh, out: Path, paths, *, seconds: fl
         nonlinear=scene.effects.geometric_nonlinearity, grid=grid_, envelope=grid_.envelope,
         n_expected=sum(len(p) for p in paths), n_done=len(rows), n_mirrored=sum(r.mirrored_from is not None for r in rows),
         wall_seconds_this_run=seconds, errors=errors, snapshots=rows,
-        source=source_of(scene.label_map) if scene.label_map is not None else None)
+        source=source_of(scene.label_map) if scene.label_map is not None else None,
+        validity=folder.validity_of(grid_, rows))
     folder.write_manifest(out, manifest)
     return manifest

@@ -58,3 +58,27 @@ def test_unfinished_altered_or_foreign_folders_are_refused(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps({**data, "n_expected": "many"}))
     with pytest.raises(ValueError, match="n_expected"):
         folder.read_sweep(tmp_path)
+
+
+def test_validity_lists_inverted_snapshots_and_where_every_angle_is_valid(tmp_path):
+    """Grid 1, 2 mm x -1, 1 deg: one inverted snapshot at (2 mm, 1 deg) and a NaN at (2 mm, -1 deg)."""
+    manifest = _write_sweep(tmp_path)
+    rows = [r.model_copy(update={"min_det_f": {(2.0, 1.0): -0.1, (2.0, -1.0): float("nan")}.get(
+        (r.displacement_mm, r.angle_deg), r.min_det_f)}) for r in manifest.snapshots]
+    v = folder.validity_of(manifest.grid, rows)
+    assert v.inverted == ["snapshots/a000_d001.npz", "snapshots/a001_d001.npz"] and v.n_inverted == 2
+    assert v.first_inverted_mm == [2.0, 2.0] and v.valid_up_to_mm == 1.0
+    valid = folder.validity_of(manifest.grid, [r for r in rows if r.displacement_mm == 1.0])
+    assert valid.n_inverted == 0 and valid.first_inverted_mm == [None, None] and valid.valid_up_to_mm == 2.0
+    assert folder.validity_of(manifest.grid, [rows[3]]).valid_up_to_mm == 1.0  # only the inverted one is on disk yet
+    assert folder.valid_up_to_mm([1.0, 2.0], [1.0]) == 0.0  # not even the first displacement
+
+
+def test_a_folder_from_before_the_check_is_judged_by_its_solver(tmp_path):
+    """No `validity` (format 2 as first written): a nonlinear sweep's records were measured by Newton,
+    a linear sweep's say 1.0 unmeasured and are refused."""
+    manifest = _write_sweep(tmp_path)
+    assert manifest.validity is None
+    assert folder.sweep_validity(manifest).valid_up_to_mm == 2.0
+    with pytest.raises(ValueError, match="linear sweep was written before det"):
+        folder.sweep_validity(manifest.model_copy(update={"nonlinear": False}))

@@ -1,0 +1,95 @@
+"""A linear sweep pushed until elements turn inside out reports it (stability suite): true det F per
+snapshot, the inverted ones listed in the manifest, a warning from the CLI, no silent resume."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from contracts import sweep as folder
+from contracts.mesh import read_mesh
+from fem_offline.__main__ import main
+from fem_offline.linear import det_f, linear_modes, min_det_f, superpose
+from fem_offline.problem import build_problem
+from fem_offline.scene import SceneError, load_scene, parse_scene
+from fem_offline.sweep import run_sweep
+
+from .cli_helpers import LINEAR, scene_file
+
+
+@pytest.fixture(scope="module")
+def inverted_sweep(tmp_path_factory):
+    """tiny.toml linear, 2.5 ... 10 mm x -10, 0, 10 deg, through the CLI. On this mesh det F first reaches 0
+    between 6 and 6.5 mm (measured), so 7.5 and 10 mm are inverted at every angle."""
+    tmp = tmp_path_factory.mktemp("inverted")
+    out = tmp / "sweep"
+    assert main(["sweep", "--scene", str(scene_file(tmp, "lin", LINEAR)), "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def sweep_problem(inverted_sweep):
+    manifest = folder.read_manifest(inverted_sweep)
+    return build_problem(parse_scene(manifest.scene), read_mesh(inverted_sweep / folder.MESH_FILE))
+
+
+def test_each_snapshot_records_its_true_min_det_f(inverted_sweep, sweep_problem):
+    """min_det_f of every file = Problem.min_jacobian of its displacement: <= 0 for the inverted, > 0 for the rest."""
+    manifest = folder.read_manifest(inverted_sweep)
+    for row in manifest.snapshots:
+        with np.load(inverted_sweep / row.file) as z:
+            expected = sweep_problem.min_jacobian(z["displacement"].ravel())
+            assert float(z["min_det_f"]) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        assert row.min_det_f == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        assert (row.min_det_f > 0) == (row.displacement_mm <= 5.0), (row.file, row.min_det_f)
+
+
+def test_the_manifest_lists_the_inverted_and_where_every_angle_is_valid(inverted_sweep):
+    manifest = folder.read_manifest(inverted_sweep)
+    v = manifest.validity
+    inverted = sorted(r.file for r in manifest.snapshots if r.min_det_f <= 0)
+    assert sorted(v.inverted) == inverted and v.n_inverted == len(inverted) == 6  # 7.5 and 10 mm at 3 angles
+    assert v.first_inverted_mm == [7.5, 7.5, 7.5]
+    assert v.valid_up_to_mm == 5.0
+    assert v.min_det_f == min(r.min_det_f for r in manifest.snapshots) < -1.0
+
+
+def test_the_sweep_cli_warns_with_the_count_and_the_valid_range(tmp_path, inverted_sweep, capsys):
+    """Re-running the finished sweep solves nothing and warns again from the manifest."""
+    out = tmp_path / "again"
+    shutil.copytree(inverted_sweep, out)
+    scene = tmp_path / "lin.toml"
+    scene.write_text((inverted_sweep.parent / "lin.toml").read_text())
+    assert main(["sweep", "--scene", str(scene), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: 6 of 12 snapshots turn an element inside out" in err
+    assert "the first at 7.5 mm." in err and "Every angle is valid up to 5 mm" in err
+
+
+def test_a_linear_folder_written_before_the_check_is_not_resumed(tmp_path, inverted_sweep):
+    """Its snapshots say min_det_f 1.0 without having measured it: resuming would pass them off as checked."""
+    out = tmp_path / "old"
+    shutil.copytree(inverted_sweep, out)
+    data = json.loads((out / folder.MANIFEST).read_text())
+    del data["validity"]
+    (out / folder.MANIFEST).write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="this linear sweep was written before det"):
+        folder.sweep_validity(folder.read_manifest(out))
+    with pytest.raises(SceneError, match="linear snapshots written before det.*use a new --out"):
+        run_sweep(load_scene(inverted_sweep.parent / "lin.toml"), out)
+
+
+def test_det_f_is_the_cubic_in_d_that_superposition_gives(tiny_linear_problem):
+    """det(I + grad u(d)) at every quadrature point, from the cubic, equals the determinant of the superposed field."""
+    from fem_offline import elasticity as el
+
+    p = tiny_linear_problem
+    modes = linear_modes(p)
+    d = np.array([0.0, 3.3, 8.0, 25.0])
+    for beta in (-10.0, 4.0):
+        cubic = det_f(p, modes, d, beta)  # (n_d, n_active, n_qp)
+        for k, dk in enumerate(d):
+            H = el.displacement_gradient(p.G, p.element_displacement(superpose(modes, dk, beta).ravel()))
+            np.testing.assert_allclose(cubic[k], np.linalg.det(np.eye(3) + H), rtol=1e-9, atol=1e-9 * max(1.0, dk**3))
+        np.testing.assert_array_equal(min_det_f(p, modes, d, beta), cubic.min(axis=(1, 2)))
