@@ -158,6 +158,19 @@ class Timing(_Frozen):
     total_seconds: float
 
 
+class EnvelopeCut(_Frozen):
+    """Why the model answers for less than its sweep covers: beyond valid_up_to_mm the sweep's snapshots
+    turn an element inside out (det(I + grad u) <= 0) at some angle, so training left them out."""
+
+    sweep_envelope: Envelope  # what the sweep covered; the manifest's `envelope` is the cut one
+    valid_up_to_mm: float  # the largest grid displacement up to which every angle's snapshots are valid
+    n_excluded: int  # snapshots beyond it, left out of training and evaluation (valid ones at other angles too)
+    n_inverted: int  # of those, the ones with an inverted element
+    min_det_f: float  # the lowest det(I + grad u) in the sweep
+    dropped_test_cases: list[tuple[float, float]] = []  # held-out cases asked for beyond the cut, not evaluated
+    n_dropped_offgrid: int = 0  # off-grid cases beyond the cut, not evaluated
+
+
 class ModelManifest(_Frozen):
     format_version: Literal[2] = MODEL_FORMAT
     name: str
@@ -169,7 +182,8 @@ class ModelManifest(_Frozen):
     pca: PcaInfo
     network: NetworkInfo
     normalisation: Normalisation
-    envelope: Envelope
+    envelope: Envelope  # what the model answers for; the service refuses anything outside it (422)
+    envelope_cut: EnvelopeCut | None = None  # None: every snapshot of the sweep is a deformation
     onnx: OnnxInfo
     metrics: Metrics
     accuracy: Accuracy

@@ -40,6 +40,22 @@ def held_out_cases(displacements_mm, angles_deg) -> tuple[tuple[float, float], .
     return tuple(picks)
 
 
+def _valid_part(scene, manifest, say):
+    """(scene, grid displacements) that the model will answer for: all of them, or, when the sweep
+    inverts elements (training fits only up to its valid_up_to_mm), those up to it, with the
+    scene's sweep cut there so the off-grid cases are drawn inside the model's envelope."""
+    v = manifest.validity
+    if not v.n_inverted:
+        return scene, manifest.grid.displacements_mm
+    valid = [d for d in manifest.grid.displacements_mm if d <= v.valid_up_to_mm]
+    if not valid:
+        raise RuntimeError(f"sweep: its first displacement already turns an element inside out "
+                           f"(det(I + grad u) <= 0, {v.n_inverted} snapshots): nothing valid to fit")
+    say(f"      {v.n_inverted} snapshots turn an element inside out: the model answers up to {valid[-1]:g} mm")
+    cut = scene.sweep.model_copy(update={"displacement_max_mm": valid[-1]})
+    return scene.model_copy(update={"sweep": cut}), valid
+
+
 def build(scene_path: str | Path, out: str | Path, *, work: str | Path | None = None,
           options: BuildOptions = BuildOptions(), say=print) -> ModelManifest:
     """Run every step for the scene file and write the model folder `out`; `work` holds the sweep and cases."""
@@ -59,15 +75,16 @@ def build(scene_path: str | Path, out: str | Path, *, work: str | Path | None = 
         raise RuntimeError(f"sweep: {len(manifest.errors)} paths failed, first: {manifest.errors[0]}")
     say(f"      {manifest.n_tets} tets, {manifest.n_nodes} nodes, {manifest.n_done} snapshots "
         f"({'nonlinear' if manifest.nonlinear else 'linear'}), {time.perf_counter() - t0:.0f} s so far")
+    scene, displacements = _valid_part(scene, manifest, say)
     say(f"[2/3] {options.offgrid_cases} off-grid cases into {work / 'offgrid'}")
     mesh_path = mesh_for_cases(read_mesh(work / "sweep" / "mesh.npz"), work / "offgrid")
     failures = solve_cases(scene, mesh_path, work / "offgrid", options.offgrid_cases, options.seed, workers=options.workers)
     if failures:
         raise RuntimeError(f"off-grid cases: {len(failures)} failed, first: {failures[0]}")
     say(f"[3/3] fit into {out}")
-    n_train = manifest.n_done - len(held_out_cases(manifest.grid.displacements_mm, manifest.grid.angles_deg))
-    fit_options = FitOptions(rank=min(options.rank, max(n_train - 1, 1)), seed=options.seed,
-                             test_cases=held_out_cases(manifest.grid.displacements_mm, manifest.grid.angles_deg))
+    test_cases = held_out_cases(displacements, manifest.grid.angles_deg)
+    n_train = sum(r.displacement_mm in displacements for r in manifest.snapshots) - len(test_cases)
+    fit_options = FitOptions(rank=min(options.rank, max(n_train - 1, 1)), seed=options.seed, test_cases=test_cases)
     model = fit(work / "sweep", out, fit_options, offgrid=work / "offgrid")
     say(f"{out}: {summary_line(model)}; whole build {time.perf_counter() - t0:.0f} s")
     return model

@@ -32,6 +32,8 @@ def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
     summary = {
         "name": m.name, "scene": m.scene.model_dump(include={"name", "sha256"}), "mesh": m.mesh.model_dump(),
         "envelope": m.envelope.model_dump(), "regions": m.regions,
+        # why the envelope is smaller than the sweep's: beyond it the sweep's snapshots were not deformations
+        "envelope_cut": m.envelope_cut.model_dump() if m.envelope_cut else None,
         "pca": m.pca.model_dump(include={"rank", "energy"}),
         "network": m.network.model_dump(include={"width", "depth", "activation"}),
         "fit": m.fit.model_dump(),

@@ -2,6 +2,13 @@
 
 `fit_surrogate` is the pure part (arrays in, a fitted surrogate out) that `training fit` and the
 trade-off study share; `fit` adds the files around it.
+
+A sweep whose snapshots turn an element inside out (det(I + grad u) <= 0, the linear model's
+answer to a large push) is never served as valid: `fit` trains only on the snapshots up to the
+largest displacement at which every angle is valid, cuts the model's envelope there (so the
+service refuses anything beyond it with its 422 envelope error) and records the cut in the
+manifest (`envelope_cut`: how many snapshots were left out and why). Held-out and off-grid cases
+beyond the cut are not evaluated and are counted there too.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from contracts.model import PAPER_TEST_CASES, FitOptions, onnx_session
 from .export import build_graph, folded_layers, reference_decode
 from .metrics import ANGLE_FLOOR_MM, case_errors, summarise
 from .pca import Pca, fit_pca
-from .snapshots import Snapshots, read_offgrid, read_sweep, snapshots_of
+from .snapshots import Snapshots, read_offgrid, read_sweep, valid_part
 
 log = logging.getLogger(__name__)
 
@@ -151,6 +158,23 @@ def _metrics(session, surrogate: Surrogate, data: Snapshots, test, inputs, offgr
                           onnx_vs_float64_max_abs_mm=parity)
 
 
+def _inside_cut(envelope, cut, test_cases, offgrid):
+    """(held-out cases, off-grid cases, cut) inside a cut envelope; the ones left out are counted in the cut."""
+    if cut is None:
+        return test_cases, offgrid, None
+    kept = tuple(c for c in test_cases if envelope.contains(*c))
+    if not kept:
+        raise ValueError(f"--test-case: every held-out case lies beyond {cut.valid_up_to_mm:g} mm, where the sweep "
+                         "stops being valid (det(I + grad u) <= 0); hold out snapshots below it")
+    cut = cut.model_copy(update={"dropped_test_cases": [c for c in test_cases if c not in kept]})
+    if offgrid is not None:
+        inside = np.array([envelope.contains(*x) for x in offgrid[0]], dtype=bool)
+        cut = cut.model_copy(update={"n_dropped_offgrid": int((~inside).sum())})
+        offgrid = (offgrid[0][inside], offgrid[1][inside]) if inside.any() else None
+    log.warning("%s; held-out cases not evaluated: %s", cut_line(cut), cut.dropped_test_cases or "none")
+    return kept, offgrid, cut
+
+
 def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None = None,
         fe_error: Path | None = None, progress: bool = True) -> folder.ModelManifest:
     """Run the whole pipeline and write `out`; returns the manifest."""
@@ -160,10 +184,12 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
 
     t_start = time.perf_counter()
     sweep = read_sweep(snapshots)
-    data = snapshots_of(sweep)
+    _held_out_mask(sweep.inputs, options.test_cases)  # each asked-for case is a snapshot of the sweep, cut or not
+    data, envelope, cut = valid_part(sweep)
     cases = read_offgrid(offgrid, len(sweep.mesh.nodes)) if offgrid is not None else None
+    test_cases, cases, cut = _inside_cut(envelope, cut, options.test_cases, cases)
     fe = fe_discretisation(fe_error, sweep.mesh) if fe_error is not None else None
-    test, inputs, rows = training_set(data, options.test_cases)
+    test, inputs, rows = training_set(data, test_cases)
     with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
         surrogate = fit_surrogate(inputs, rows, options, progress=bar.update)
     onnx_bytes = surrogate.onnx_bytes()
@@ -179,7 +205,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         name=Path(out).name,
         created_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         scene=folder.SceneInfo(name=m.scene_name, sha256=m.scene_sha256, spec=m.scene),
-        sweep=folder.SweepInfo(n_snapshots=len(data), nonlinear=m.nonlinear),
+        sweep=folder.SweepInfo(n_snapshots=len(sweep.inputs), nonlinear=m.nonlinear),
         mesh=folder.MeshInfo(n_nodes=len(sweep.mesh.nodes), n_tets=len(sweep.mesh.tets),
                              n_dofs=3 * len(sweep.mesh.nodes), tissues=list(sweep.mesh.tissue_names)),
         fit=options,
@@ -190,7 +216,8 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
                                    n_train=len(inputs), output="displacement = d x decoded field (exactly 0 at rest)"),
         normalisation=folder.Normalisation(input_center=surrogate.input_center.tolist(),
                                            input_scale=surrogate.input_scale.tolist()),
-        envelope=m.envelope,
+        envelope=envelope,
+        envelope_cut=cut,
         onnx=folder.OnnxInfo(opset=17, inputs={"guide": "float32 [batch, 2]", "nodes": "int64 [k], optional, empty = all"},
                              outputs={"displacement": "float32 [batch, k, 3] mm"}, basis_dtype="float32"),
         metrics=metrics,
@@ -212,8 +239,17 @@ def summary_line(manifest: folder.ModelManifest) -> str:
     if m.offgrid_summary:
         line += f"; off-grid ({m.offgrid_summary.n_cases}): e_NN {m.offgrid_summary.e_nn_mm:.4f} mm"
     line += f"; onnx vs float64 {m.onnx_vs_float64_max_abs_mm:.2e} mm"
+    if manifest.envelope_cut is not None:
+        line += f"; {cut_line(manifest.envelope_cut)}"
     markers = manifest.accuracy.regions["markers"]
     if markers.end_to_end_mm is not None:
         line += (f"; end to end at the markers {markers.end_to_end_mm:.3f} mm (surrogate {markers.surrogate_mm:.4f} + "
                  f"FE discretisation {markers.fe_discretisation_mm:.3f})")
     return line
+
+
+def cut_line(cut: folder.EnvelopeCut) -> str:
+    """One sentence on an envelope cut: where, how many snapshots were left out, and why."""
+    d0, d1 = cut.sweep_envelope.displacement_mm
+    return (f"envelope cut to 0..{cut.valid_up_to_mm:g} mm (the sweep covers {d0:g}..{d1:g}): {cut.n_excluded} snapshots "
+            f"left out, {cut.n_inverted} of them inverted (det(I + grad u) <= 0, min {cut.min_det_f:.3g})")

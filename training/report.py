@@ -42,6 +42,15 @@ def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
         f"Paper: e_NN {paper['e_nn_mm']} mm, α {paper['alpha_deg']}°, e_r {paper['e_r_percent']} %, "
         f"training {paper['train_minutes']} min.",
     ]
+    if manifest.envelope_cut is not None:
+        c = manifest.envelope_cut
+        dropped = ", ".join(f"{d:g} mm / {a:g}°" for d, a in c.dropped_test_cases) or "none"
+        lines += ["", "## Envelope cut: where the sweep stops being a deformation", "",
+                  f"The sweep covers {c.sweep_envelope.displacement_mm[0]:g} to {c.sweep_envelope.displacement_mm[1]:g} mm, "
+                  f"but {c.n_inverted} of its snapshots turn an element inside out (det(I + ∇u) ≤ 0, min "
+                  f"{c.min_det_f:.3g}). This model was trained on, and answers for, 0 to {c.valid_up_to_mm:g} mm only: "
+                  f"{c.n_excluded} snapshots beyond it were left out. Held-out cases beyond it, not evaluated: {dropped}; "
+                  f"off-grid cases beyond it: {c.n_dropped_offgrid}."]
     if m.offgrid_summary:
         o = m.offgrid_summary
         lines += ["", f"## Off-grid cases ({o.n_cases}, random inside the envelope, solved by `fem_offline cases`)", "",

@@ -1,4 +1,10 @@
-"""Training's view of a sweep folder (contracts.sweep): inputs and displacement fields as arrays."""
+"""Training's view of a sweep folder (contracts.sweep): inputs and displacement fields as arrays.
+
+A snapshot that turns an element inside out (det(I + grad u) <= 0; the linear model does so beyond a
+few mm of guide push) is not a deformation, and a model must never answer with one. `valid_part`
+keeps the snapshots up to the sweep's `valid_up_to_mm`, the largest displacement at which every
+angle is valid, and cuts the envelope there; the model folder records the cut (EnvelopeCut).
+"""
 
 from __future__ import annotations
 
@@ -7,9 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.sweep import MESH_FILE, Sweep, read_cases, read_sweep
+from contracts.envelope import Envelope
+from contracts.model import EnvelopeCut
+from contracts.sweep import MESH_FILE, Sweep, read_cases, read_sweep, sweep_validity
 
-__all__ = ["Snapshots", "Sweep", "read_cases", "read_offgrid", "read_sweep", "snapshots_of"]
+__all__ = ["Snapshots", "Sweep", "read_cases", "read_offgrid", "read_sweep", "snapshots_of", "valid_part"]
 
 
 @dataclass(frozen=True)
@@ -27,6 +35,28 @@ class Snapshots:
 
 def snapshots_of(sweep: Sweep) -> Snapshots:
     return Snapshots(sweep.inputs, sweep.displacement, sweep.mesh.nodes)
+
+
+def valid_part(sweep: Sweep) -> tuple[Snapshots, Envelope, EnvelopeCut | None]:
+    """The snapshots a model may be fitted on, the envelope it answers for, and the cut (None: whole sweep).
+
+    With an inverted snapshot anywhere, everything beyond valid_up_to_mm is left out, valid snapshots
+    at other angles too, so the envelope stays a rectangle: d in [0, valid_up_to_mm] at every angle.
+    ValueError when no loaded snapshot is valid, or for a linear sweep whose det F was never measured.
+    """
+    validity = sweep_validity(sweep.manifest)
+    data, envelope = snapshots_of(sweep), sweep.manifest.envelope
+    if validity.n_inverted == 0:
+        return data, envelope, None
+    d_max = validity.valid_up_to_mm
+    keep = data.inputs[:, 0] <= d_max
+    if not (data.inputs[keep, 0] > 0).any():
+        first = min(d for d in validity.first_inverted_mm if d is not None)
+        raise ValueError(f"--snapshots: the sweep turns an element inside out (det(I + grad u) <= 0) from its first "
+                         f"displacement on ({first:g} mm): no valid snapshot to fit")
+    cut = EnvelopeCut(sweep_envelope=envelope, valid_up_to_mm=d_max, n_excluded=int((~keep).sum()),
+                      n_inverted=validity.n_inverted, min_det_f=validity.min_det_f)
+    return data.select(keep), Envelope(displacement_mm=(0.0, d_max), angle_deg=envelope.angle_deg), cut
 
 
 def read_offgrid(folder: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:

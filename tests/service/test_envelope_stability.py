@@ -40,3 +40,17 @@ def test_envelope_edges_through_the_service_match_onnxruntime(client, predictor,
 def test_just_outside_the_envelope_is_refused(client, d, a):
     r = client.post("/predict", json={"displacement_mm": d, "angle_deg": a})
     assert r.status_code == 422 and "training envelope" in r.text
+
+
+def test_the_served_envelope_stops_where_the_sweep_inverts(tiny_client, tiny_folder):
+    """The tiny model's linear sweep turns elements inside out beyond its cut (tests/conftest.py): the cut
+    itself is answered; a step past it, and the sweep's own largest push, get 422."""
+    cut = tiny_folder.manifest.envelope_cut
+    d = cut.valid_up_to_mm
+    info = tiny_client.get("/model").json()
+    assert info["envelope"]["displacement_mm"] == [0.0, d] and info["envelope_cut"]["valid_up_to_mm"] == d
+    assert info["envelope_cut"]["n_inverted"] > 0
+    assert tiny_client.post("/predict", json={"displacement_mm": d, "angle_deg": 10.0}).status_code == 200
+    for beyond in (d + 1e-6, cut.sweep_envelope.displacement_mm[1]):
+        r = tiny_client.post("/predict", json={"displacement_mm": beyond, "angle_deg": 0.0})
+        assert r.status_code == 422 and "training envelope" in r.text, (beyond, r.text)

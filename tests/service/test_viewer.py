@@ -39,7 +39,7 @@ def _replies(client, regions, case) -> list[np.ndarray]:
 def test_scene_gathers_every_drawn_node_from_the_requests_it_makes(tiny_client, tiny_folder):  # noqa: F811
     """Positions gathered from the page's replies are /predict's positions of each surface node and marker."""
     scene = tiny_client.get("/viewer/scene.json").json()
-    case = {"displacement_mm": 9.0, "angle_deg": -7.0}
+    case = {"displacement_mm": 5.5, "angle_deg": -7.0}
     replies = _replies(tiny_client, scene["regions"], case)
     full = np.asarray(predict_json(tiny_client, **case)["positions"])
     assert {t["name"] for t in scene["tissues"]} == set(tiny_folder.surfaces)
@@ -94,32 +94,34 @@ def test_page_loads_without_errors_with_the_envelope_on_its_sliders(viewer, tiny
 
 
 @needs_chromium
-def test_displacement_slider_moves_the_prostate_and_keeps_the_camera(viewer, tmp_path):
+def test_displacement_slider_moves_the_prostate_and_keeps_the_camera(viewer, tiny_folder, tmp_path):  # noqa: F811
     page, problems, _ = viewer
+    top = tiny_folder.manifest.envelope.displacement_mm[1]  # the linear sweep's valid part (tests/conftest.py)
     set_slider(page, "displacement", 0.0)
     point = page.evaluate("__viewer.prostateScreenPoint()")
     box = {"x": point["x"] - 80, "y": point["y"] - 80, "width": 160, "height": 160}
     camera = page.evaluate("__viewer.cameraPosition()")
     before = _pixels(page, box)
-    state = set_slider(page, "displacement", 10.0)
+    state = set_slider(page, "displacement", top)
     after = _pixels(page, box)
     changed = (np.abs(after - before).max(axis=2) > 30).mean()
-    assert changed > 0.02, f"only {changed:.1%} of the prostate's pixels changed from 0 to 10 mm"
-    assert state["lastFrame"]["displacement_mm"] == 10.0
+    assert changed > 0.02, f"only {changed:.1%} of the prostate's pixels changed from 0 to {top} mm"
+    assert state["lastFrame"]["displacement_mm"] == top
     np.testing.assert_allclose(page.evaluate("__viewer.cameraPosition()"), camera, atol=1e-9)
     assert problems == []
 
 
 @needs_chromium
-def test_a_click_on_the_prostate_adds_a_target_that_moves_as_predict_says(viewer, tiny_client, tmp_path):  # noqa: F811
+def test_a_click_on_the_prostate_adds_a_target_that_moves_as_predict_says(viewer, tiny_client, tiny_folder, tmp_path):  # noqa: F811
     page, problems, _ = viewer
-    set_slider(page, "displacement", 10.0)
+    top = tiny_folder.manifest.envelope.displacement_mm[1]
+    set_slider(page, "displacement", top)
     set_slider(page, "angle", 6.0)
     point = page.evaluate("__viewer.prostateScreenPoint()")
     page.mouse.click(point["x"], point["y"])
     page.wait_for_function("__viewer.targets.length === 1 && __viewer.targets[0].motionMm !== null && !__viewer.busy")
     target = page.evaluate("__viewer.targets[0]")
-    reply = predict_json(tiny_client, displacement_mm=10.0, angle_deg=6.0, points=[target["reference"]])
+    reply = predict_json(tiny_client, displacement_mm=top, angle_deg=6.0, points=[target["reference"]])
     assert target["motionMm"] == pytest.approx(np.linalg.norm(reply["displacements"][0]), abs=0.01)
     np.testing.assert_allclose(target["position"], reply["positions"][0], atol=0.01)
     assert f"moved {target['motionMm']:.2f} mm" in page.inner_text("#targets")

@@ -22,8 +22,10 @@ def test_folder_holds_what_the_manifest_promises(tiny_model, tiny_sweep, tiny_te
     assert parse_scene(m["scene"]["spec"]).sha256() == m["scene"]["sha256"]  # the full scene, as solved
     assert m["fit"] == {"rank": 8, "width": 60, "depth": 1, "max_iterations": 300, "seed": 0,
                         "test_cases": [list(c) for c in tiny_test_cases]}
-    assert m["envelope"] == {"displacement_mm": [0.0, 10.0], "angle_deg": [-10.0, 10.0]}
-    assert m["network"]["n_train"] == 110 - 2 and set(m["files"]) == {"model.onnx", "mesh.npz", "report.md"}
+    # the linear sweep inverts elements beyond valid_up_to_mm: the model is cut there (test_inversion_stability.py)
+    cut_mm = sweep.manifest.validity.valid_up_to_mm
+    assert m["envelope"] == {"displacement_mm": [0.0, cut_mm], "angle_deg": [-10.0, 10.0]}
+    assert m["network"]["n_train"] == 11 * int(cut_mm) - 2 and set(m["files"]) == {"model.onnx", "mesh.npz", "report.md"}
     assert {"prostate", "prostate_surface", "markers", "guide_patch", "adipose"} <= set(m["regions"])
     assert m["regions"]["markers"] == 8
     rows = m["metrics"]["table3"]
