@@ -9,7 +9,7 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 IMAGE ?= deform-service
 
-.PHONY: install serve test test-fast bench bench-service tradeoff convergence default-model container-test clean system-deps viewer-assets labelmesh
+.PHONY: install serve test test-fast bench bench-service tradeoff convergence linear-validity default-model container-test clean system-deps viewer-assets labelmesh
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -79,6 +79,11 @@ tradeoff: $(STAMP)
 # The grid-convergence study (docs/convergence.*); resumable: run it again to go on.
 convergence: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py
+
+# Up to which displacement the linear model is a deformation (docs/linear_validity.*); seconds. With the
+# scene's nonlinear sweep in $(RUNS) it compares with it on the same mesh (e.g. RUNS=runs/default_conv).
+linear-validity: $(STAMP)
+	$(PY) scripts/linear_validity.py $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS))
 
 # The committed models/default from scratch: sweep, off-grid cases, fit. Each step resumes.
 default-model: $(STAMP)

@@ -1,0 +1,146 @@
+"""Where the linear model stops being a deformation: det(I + grad u) per case, the tets it inverts, the tissue under the tip.
+
+Small strain lets u grow without limit in d while det F = det(I + grad u) is a cubic in d at every
+quadrature point (linear.det_f_cubic). Past its first root some element is inside out. This module
+measures, along each angle of a sweep grid: min det F, the number of inverted tets and where they
+are, the exact first crossing of det F = 0 (bisection on the cubic between grid points), and the
+displacement up to which every angle is valid (contracts.sweep.valid_up_to_mm). The study that
+prints it is scripts/linear_validity.py (docs/linear_validity.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from contracts.interpolate import PointLocator
+from contracts.sweep import read_cases, valid_up_to_mm
+
+from .guide import direction, tip
+from .linear import det_f, det_f_cubic, linear_modes
+from .problem import Problem
+
+
+@dataclass(frozen=True)
+class AngleCurve:
+    """The linear model's det F along one angle of the grid."""
+
+    angle_deg: float
+    displacements_mm: np.ndarray  # (n_d,)
+    min_det_f: np.ndarray  # (n_d,) over every quadrature point of the assembled tets
+    n_inverted_tets: np.ndarray  # (n_d,) tets with det F <= 0 at a quadrature point
+    first_inversion_mm: float | None  # where min det F first reaches 0 (to 1e-4 mm); None: not in the grid
+    inverted_at_max: dict[str, int]  # tissue -> inverted tets at the largest displacement
+    farthest_from_tip_mm: float  # of those tets' centroids, the largest distance from the guide tip (0: none)
+
+
+def _first_root(c: np.ndarray, lo: float, hi: float, tol_mm: float = 1e-4) -> float:
+    """Smallest d in (lo, hi] with min det F(d) <= 0, by bisection (min det F(lo) > 0 >= min det F(hi))."""
+    def ok(d: float) -> bool:
+        return (c[0] + d * (c[1] + d * (c[2] + d * c[3]))).min() > 0
+
+    while hi - lo > tol_mm:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return hi
+
+
+def resampled(problem: Problem, intorder: int) -> Problem:
+    """The problem with basis gradients at the points of another quadrature rule (to probe det F between
+    the solver's own points; its weights W are for that rule too)."""
+    from skfem import Basis, ElementTetP2
+
+    from .mesh import skfem_mesh
+
+    basis = Basis(skfem_mesh(problem.mesh), ElementTetP2(), intorder=intorder)
+    G = np.stack([basis.basis[a][0].grad for a in range(10)]).transpose(2, 3, 0, 1)  # (n_tets, n_qp, 10, 3)
+    active = problem.active if problem.active is not None else slice(None)
+    return replace(problem, G=np.ascontiguousarray(G[active]), W=np.ascontiguousarray(basis.dx[active]))
+
+
+def points_per_tet(intorder: int) -> int:
+    """Quadrature points per tet of scikit-fem's degree-`intorder` rule (the problem's own: 2, 4 points)."""
+    from skfem.quadrature import get_quadrature
+    from skfem.refdom import RefTet
+
+    return get_quadrature(RefTet, intorder)[0].shape[1]
+
+
+def det_f_curves(problem: Problem, displacements_mm, angles_deg, *, intorder: int | None = None) -> list[AngleCurve]:
+    """det F of the linear model's answer at every (d, beta) of the grid, one AngleCurve per angle.
+
+    At the problem's quadrature points (those the solver and the sweep check), or at those of the
+    degree-`intorder` rule; the model itself is always the problem's."""
+    modes = linear_modes(problem)
+    problem = problem if intorder is None else resampled(problem, intorder)
+    mesh, d = problem.mesh, np.asarray(displacements_mm, dtype=np.float64)
+    tets = np.flatnonzero(problem.active) if problem.active is not None else np.arange(len(mesh.tets))
+    centroids = mesh.nodes[mesh.tets[tets, :4]].mean(axis=1)  # (n_active, 3)
+    tip_mm = tip(mesh, problem.scene.guide)
+    curves = []
+    for angle in np.asarray(angles_deg, dtype=np.float64):
+        per_tet = det_f(problem, modes, d, angle).min(axis=2)  # (n_d, n_active)
+        low = per_tet.min(axis=1)
+        bad = np.flatnonzero(low <= 0)
+        first = None
+        if bad.size:
+            c = det_f_cubic(problem, modes, angle)
+            lo = d[bad[0] - 1] if bad[0] > 0 else 0.0
+            first = _first_root(c, lo, d[bad[0]]) if np.min(c[0]) > 0 else 0.0
+        inverted = per_tet[-1] <= 0
+        names, counts = np.unique(mesh.tissue[tets[inverted]], return_counts=True)
+        reach = np.linalg.norm(centroids[inverted] - tip_mm, axis=1)
+        curves.append(AngleCurve(float(angle), d, low, (per_tet <= 0).sum(axis=1), first,
+                                 {mesh.tissue_names[t]: int(n) for t, n in zip(names, counts)},
+                                 float(reach.max()) if reach.size else 0.0))
+    return curves
+
+
+def valid_up_to(curves: list[AngleCurve]) -> float:
+    """The largest grid displacement up to which every angle's answer is valid (0: not even the first)."""
+    d = curves[0].displacements_mm
+    return valid_up_to_mm(d, [x for c in curves for x in c.displacements_mm[c.min_det_f <= 0]])
+
+
+def tissue_along_axis(problem: Problem, *, length_mm: float = 25.0, step_mm: float = 0.05) -> list[tuple[str, float, float]]:
+    """(tissue, from mm, to mm) runs along the guide's push axis (beta = 0) from the tip into the body."""
+    mesh = problem.mesh
+    s = np.arange(0.0, length_mm + step_mm / 2, step_mm)
+    points = tip(mesh, problem.scene.guide) + s[:, None] * direction(problem.scene.guide, 0.0)
+    tet, _ = PointLocator(mesh.nodes, mesh.tets).locate(points)
+    names = np.array([mesh.tissue_names[mesh.tissue[t]] if t >= 0 else "outside" for t in tet])
+    starts = np.r_[0, np.flatnonzero(names[1:] != names[:-1]) + 1]
+    edges = np.r_[s[starts], s[-1]]  # a run ends where the next tissue's first sample is
+    return [(str(names[a]), float(lo), float(hi)) for a, lo, hi in zip(starts, edges[:-1], edges[1:])]
+
+
+def recorded_min_det_f(manifest) -> np.ndarray:
+    """(n_angles, n_displacements) min det F a sweep's snapshots record (contracts.sweep manifest); NaN where missing."""
+    grid = manifest.grid
+    table = np.full((len(grid.angles_deg), len(grid.displacements_mm)), np.nan)
+    for r in manifest.snapshots:
+        table[grid.angles_deg.index(r.angle_deg), grid.displacements_mm.index(r.displacement_mm)] = r.min_det_f
+    return table
+
+
+def probed_min_det_f(problem: Problem, folder: Path, manifest, *, intorder: int) -> np.ndarray:
+    """Like recorded_min_det_f, but measured on the snapshot files at the points of the degree-`intorder` rule."""
+    grid, probe = manifest.grid, resampled(problem, intorder)
+    table = np.full((len(grid.angles_deg), len(grid.displacements_mm)), np.nan)
+    for i, angle in enumerate(grid.angles_deg):  # one angle's fields at a time
+        rows = [r for r in manifest.snapshots if r.angle_deg == angle]
+        if rows:
+            _, fields = read_cases([Path(folder) / r.file for r in rows])
+            for r, u in zip(rows, fields):
+                table[i, grid.displacements_mm.index(r.displacement_mm)] = probe.min_jacobian(u.ravel())
+    return table
+
+
+def table_validity(displacements_mm, table: np.ndarray) -> tuple[float, list[float | None]]:
+    """(valid up to mm, first inverted grid displacement per angle or None) of a (n_angles, n_d) min det F table."""
+    d = np.asarray(displacements_mm, dtype=np.float64)
+    bad = ~(table > 0) & np.isfinite(table)
+    first = [float(d[row].min()) if row.any() else None for row in bad]
+    return valid_up_to_mm(d.tolist(), [x for x in first if x is not None]), first

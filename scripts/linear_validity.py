@@ -1,0 +1,177 @@
+"""Up to which guide displacement the linear model stays a deformation -> docs/linear_validity.{json,md}.
+
+    python scripts/linear_validity.py [--scene fem_offline/scenes/default.toml] [--sweep runs/default_conv] [--docs docs]
+
+On the scene's mesh (the nonlinear sweep's mesh.npz when --sweep is given, so both models are on
+the same tets; otherwise the scene is meshed), computes the linear model's min det(I + grad u) and
+its number of inverted tets at every (displacement, angle) of the scene's sweep grid, the exact
+first crossing of det F = 0 per angle, and the tissue under the guide tip along its axis. With
+--sweep it sets beside them the min det F the nonlinear snapshots recorded. The numbers come from
+fem_offline/validity.py; this script only lays them out. Takes seconds on the default mesh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from contracts.mesh import read_mesh
+from contracts.sweep import MESH_FILE, read_manifest
+from fem_offline.meshing import mesh_for_scene
+from fem_offline.problem import build_problem
+from fem_offline.scene import load_scene
+from fem_offline.validity import (det_f_curves, points_per_tet, probed_min_det_f, recorded_min_det_f, table_validity,
+                                  tissue_along_axis, valid_up_to)
+
+
+def _round(x, digits: int = 4):
+    """JSON-ready and short: arrays to lists, floats to `digits` significant digits, NaN to null."""
+    if isinstance(x, dict):
+        return {k: _round(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [_round(v, digits) for v in (x.tolist() if isinstance(x, np.ndarray) else x)]
+    if isinstance(x, (float, np.floating)):
+        return float(f"{x:.{digits}g}") if np.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def _nonlinear(folder: Path, scene):
+    manifest = read_manifest(folder)
+    if manifest.scene_sha256 != scene.sha256():
+        raise SystemExit(f"--sweep: {folder} is a sweep of another scene (sha256 {manifest.scene_sha256[:12]})")
+    if not manifest.nonlinear:
+        raise SystemExit(f"--sweep: {folder} is a linear sweep; give the nonlinear one to compare with")
+    return manifest, read_mesh(folder / MESH_FILE)
+
+
+def _summary(curves) -> dict:
+    return {"valid_up_to_mm": valid_up_to(curves),
+            "first_inversion_mm": min((c.first_inversion_mm for c in curves if c.first_inversion_mm is not None), default=None),
+            "min_det_f_at_max": min(c.min_det_f[-1] for c in curves),
+            "n_inverted_tets_at_max": [min(c.n_inverted_tets[-1] for c in curves), max(c.n_inverted_tets[-1] for c in curves)]}
+
+
+def _table_summary(displacements_mm, table) -> dict:
+    valid, first = table_validity(displacements_mm, table)
+    return {"valid_up_to_mm": valid, "first_inverted_mm": first, "min_det_f": np.nanmin(table),
+            "min_det_f_at_max": np.nanmin(table[:, -1]), "n_snapshots": int(np.isfinite(table).sum())}
+
+
+def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
+    scene = load_scene(scene_path)
+    manifest, mesh = _nonlinear(sweep, scene) if sweep is not None else (None, mesh_for_scene(scene))
+    problem = build_problem(load_scene(scene_path, effects={"geometric_nonlinearity": False}), mesh)
+    grid = scene.sweep
+    curves = det_f_curves(problem, grid.displacements_mm, grid.angles_deg)
+    dense = det_f_curves(problem, grid.displacements_mm, grid.angles_deg, intorder=intorder)
+    out = {
+        "command": "python " + " ".join(sys.argv),
+        "scene": scene.name, "scene_sha256": scene.sha256(),
+        "mesh": {"n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes),
+                 "source": str(sweep / MESH_FILE) if sweep is not None else "meshed from the scene"},
+        "displacements_mm": grid.displacements_mm, "angles_deg": grid.angles_deg,
+        "linear": _summary(curves),
+        "tissue_along_axis_mm": [{"tissue": t, "from": a, "to": b} for t, a, b in tissue_along_axis(problem)],
+        "angles": [{"angle_deg": c.angle_deg, "first_inversion_mm": c.first_inversion_mm,
+                    "min_det_f_at_max": c.min_det_f[-1], "n_inverted_tets_at_max": c.n_inverted_tets[-1],
+                    "inverted_tissues_at_max": c.inverted_at_max, "farthest_from_tip_mm": c.farthest_from_tip_mm,
+                    "linear_min_det_f": c.min_det_f, "linear_n_inverted_tets": c.n_inverted_tets} for c in curves],
+        "denser_points": {"intorder": intorder, "points_per_tet": points_per_tet(intorder),
+                          "linear": _summary(dense)},
+    }
+    if manifest is not None:
+        recorded = recorded_min_det_f(manifest)
+        probed = probed_min_det_f(problem, sweep, manifest, intorder=intorder)
+        out["nonlinear"] = {"sweep": str(sweep), **_table_summary(grid.displacements_mm, recorded)}
+        out["denser_points"]["nonlinear"] = _table_summary(grid.displacements_mm, probed)
+        for row, nl, nl_dense in zip(out["angles"], recorded, probed):
+            row["nonlinear_min_det_f"], row["nonlinear_min_det_f_at_max"] = nl, nl[-1]
+            row["nonlinear_min_det_f_denser"] = nl_dense
+    return _round(out)
+
+
+def markdown(s: dict) -> str:
+    d_max, step = s["displacements_mm"][-1], s["displacements_mm"][1] - s["displacements_mm"][0]
+    lin, dp, nl = s["linear"], s["denser_points"], s.get("nonlinear")
+    wall = ", ".join(f"{r['tissue']} {r['from']:g}–{r['to']:g} mm" for r in s["tissue_along_axis_mm"])
+    lines = [
+        "# Up to which guide displacement the linear model is a deformation",
+        "",
+        f"Scene `{s['scene']}`, {s['mesh']['n_tets']:,} tets ({s['mesh']['source']}), the sweep's grid "
+        f"({len(s['displacements_mm'])} displacements every {step:g} mm × {len(s['angles_deg'])} angles "
+        f"{s['angles_deg'][0]:g}..{s['angles_deg'][-1]:g}°). Command: `{s['command']}`.",
+        "",
+        f"**The linear (small-strain) model stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
+        f"up to {lin['valid_up_to_mm']:g} mm of guide push.** Its first element turns inside out at "
+        f"{lin['first_inversion_mm']:g} mm (bisection on det F's cubic in d); at {d_max:g} mm min det F is "
+        f"{lin['min_det_f_at_max']:g} with {lin['n_inverted_tets_at_max'][0]}–{lin['n_inverted_tets_at_max'][1]} tets "
+        f"inverted, all within {max(r['farthest_from_tip_mm'] for r in s['angles']):g} mm of the guide tip "
+        f"(centroids). These are the points the solver integrates at (4 per tet) and "
+        f"`fem_offline sweep` checks; `training fit` fits such a sweep only up to the valid displacement and cuts the "
+        f"model's envelope there.",
+        "",
+        f"Along the guide axis (β = 0) from the tip: {wall}.",
+        "",
+    ]
+    if nl is not None:
+        lines += [f"The nonlinear (neo-Hookean) sweep on the same mesh ({nl['sweep']}, {nl['n_snapshots']} snapshots) "
+                  f"stays valid at those points everywhere: min det F {nl['min_det_f']:g} as its snapshots record it.", ""]
+    dense_nl = dp.get("nonlinear")
+    lines += [f"**Between those points the P2 field inverts earlier.** At the {dp['points_per_tet']} points per tet of "
+              f"the degree-{dp['intorder']} rule the linear model is valid up to {dp['linear']['valid_up_to_mm']:g} mm "
+              f"(first inversion {dp['linear']['first_inversion_mm']:g} mm; min det F {dp['linear']['min_det_f_at_max']:g} "
+              f"at {d_max:g} mm)"
+              + (f", and the nonlinear snapshots up to {dense_nl['valid_up_to_mm']:g} mm (min det F "
+                 f"{dense_nl['min_det_f_at_max']:g} at {d_max:g} mm): the solver keeps det F > 0 only where it "
+                 f"integrates." if dense_nl else "."), ""]
+    head = "| β (°) | first inversion (mm) | linear min det F at {0:g} mm | inverted tets at {0:g} mm | where | farthest from tip (mm) |"
+    lines += [head.format(d_max) + (f" nonlinear min det F at {d_max:g} mm |" if nl else ""),
+              "|---|---|---|---|---|---|" + ("---|" if nl else "")]
+    for r in s["angles"]:
+        where = ", ".join(f"{k} {v}" for k, v in r["inverted_tissues_at_max"].items()) or "–"
+        first = "–" if r["first_inversion_mm"] is None else f"{r['first_inversion_mm']:g}"
+        lines.append(f"| {r['angle_deg']:g} | {first} | {r['min_det_f_at_max']:g} | {r['n_inverted_tets_at_max']} | "
+                     f"{where} | {r['farthest_from_tip_mm']:g} |" + (f" {r['nonlinear_min_det_f_at_max']:g} |" if nl else ""))
+    picks = s["angles"][::5]
+    lines += ["", "min det F at the solver's points against displacement, every 1 mm (linear; nonlinear in brackets):", "",
+              "| d (mm) | " + " | ".join(f"β = {r['angle_deg']:g}°" for r in picks) + " |", "|---|" + "---|" * len(picks)]
+    for j, d in enumerate(s["displacements_mm"]):
+        if abs(d - round(d)) < 1e-9:
+            cells = [f"{r['linear_min_det_f'][j]:g}" + (f" ({r['nonlinear_min_det_f'][j]:g})" if nl else "") for r in picks]
+            lines.append(f"| {d:g} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+    ap.add_argument("--sweep", type=Path, help="the scene's nonlinear sweep folder (its mesh and recorded min det F)")
+    ap.add_argument("--docs", type=Path, default=Path("docs"), help="where linear_validity.{json,md} go")
+    ap.add_argument("--intorder", type=int, default=4, help="a denser quadrature rule to probe det F between the "
+                    "solver's points (default 4: 11 points per tet; the solver's rule has 4)")
+    args = ap.parse_args()
+    s = study(args.scene, args.sweep, args.intorder)
+    args.docs.mkdir(parents=True, exist_ok=True)
+    (args.docs / "linear_validity.json").write_text(json.dumps(s, indent=1) + "\n")
+    (args.docs / "linear_validity.md").write_text(markdown(s))
+    lin, worst = s["linear"], min(s["angles"], key=lambda r: r["min_det_f_at_max"])
+    line = (f"linear model valid up to {lin['valid_up_to_mm']:g} mm at every angle (first inversion "
+            f"{lin['first_inversion_mm']:g} mm); at {s['displacements_mm'][-1]:g} mm min det F "
+            f"{worst['min_det_f_at_max']:g} (beta {worst['angle_deg']:g} deg, {worst['n_inverted_tets_at_max']} tets inverted)")
+    if "nonlinear" in s:
+        line += f"; nonlinear min det F {s['nonlinear']['min_det_f']:g} over {s['nonlinear']['n_snapshots']} snapshots"
+    dp = s["denser_points"]
+    line += (f". At {dp['points_per_tet']} points per tet: linear valid up to {dp['linear']['valid_up_to_mm']:g} mm"
+             + (f", nonlinear up to {dp['nonlinear']['valid_up_to_mm']:g} mm" if "nonlinear" in dp else ""))
+    print(line)
+    print(f"wrote {args.docs / 'linear_validity.json'} and {args.docs / 'linear_validity.md'}")
+
+
+if __name__ == "__main__":
+    main()
