@@ -4,6 +4,9 @@ A path at one angle beta visits d_1 < d_2 < ... . Between converged states it mo
 of at most solver.max_step_mm; each step starts Newton (newton.py) from a Lagrange extrapolation
 through up to three converged states, and a step that fails is halved, up to solver.max_halvings
 times. With gravity on, the path starts from the gravity-loaded state (loaded in 4 steps).
+With the guide in contact (contact.py), each step ends with augmented-Lagrangian updates of the
+contact multipliers, a Newton solve after each, until the wall's deepest penetration into the tip
+is below guide.contact_tol_mm; the multipliers carry to the next step.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from . import contact as ct
 from .newton import ConvergenceError, FactorCache, Stats, newton
 from .problem import Problem
 
@@ -28,6 +32,7 @@ class PathState:
     d_mm: float = 0.0
     history: tuple[tuple[float, np.ndarray], ...] = ()  # up to two earlier (d, u) for the predictor
     cache: FactorCache = field(default_factory=FactorCache)  # shared along the path (newton.py)
+    multipliers: np.ndarray | None = None  # (f, q) the contact multipliers u is in equilibrium with (contact.py)
 
 
 def predict(state: PathState, d_mm: float) -> np.ndarray:
@@ -41,15 +46,44 @@ def predict(state: PathState, d_mm: float) -> np.ndarray:
     return guess
 
 
+MAX_CONTACT_UPDATES = 30
+
+
+def settle_contact(problem: Problem, u: np.ndarray, g: np.ndarray, cache: FactorCache,
+                   stats: Stats) -> tuple[np.ndarray, np.ndarray, Stats]:
+    """Uzawa: lam <- t and re-solve until the deepest penetration is <= contact_tol_mm.
+
+    `problem` is at the guide position with the multipliers to start from (Problem.at_guide).
+    Returns (u, the multipliers u is in equilibrium with, stats): evaluated with them, contact.evaluate
+    gives the pressures of that equilibrium. Raises ConvergenceError when the updates do not settle.
+    """
+    surface, load = problem.contact, problem.contact_load
+    for update in range(MAX_CONTACT_UPDATES + 1):
+        touch = ct.evaluate(surface, u, load)
+        depth = float(max(touch.penetration.max(), 0.0))
+        if depth <= surface.tol_mm:
+            return u, load.multipliers, replace(stats, contact_updates=stats.contact_updates + update, penetration_mm=depth)
+        if update == MAX_CONTACT_UPDATES:
+            break
+        load = ct.Load(load.centre, touch.pressure)
+        u, stats = newton(replace(problem, contact_load=load), u, g, cache, stats)
+    raise ConvergenceError(f"contact: penetration {depth:.3g} mm after {MAX_CONTACT_UPDATES} multiplier updates "
+                           f"(guide.contact_tol_mm = {surface.tol_mm:g})", stats)
+
+
 def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, stats: Stats,
             depth: int = 0) -> tuple[PathState, Stats]:
     """The path state at guide displacement d_mm, halving the load step on failure; and stats + the work."""
     g = problem.dirichlet(d_mm, angle_deg)
+    loaded = problem.at_guide(d_mm, angle_deg, state.multipliers)
     guess = predict(state, d_mm)
     if problem.nonlinear and problem.min_jacobian(guess) <= 0:
         guess = state.u
+    multipliers = None
     try:
-        u, stats = newton(problem, guess, g, state.cache, stats)
+        u, stats = newton(loaded, guess, g, state.cache, stats)
+        if problem.contact is not None:
+            u, multipliers, stats = settle_contact(loaded, u, g, state.cache, stats)
     except ConvergenceError as exc:
         if depth >= problem.scene.solver.max_halvings:
             raise
@@ -58,7 +92,7 @@ def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, s
         state, stats = advance(problem, state, 0.5 * (state.d_mm + d_mm), angle_deg, stats, depth + 1)
         return advance(problem, state, d_mm, angle_deg, stats, depth + 1)
     history = (*state.history[-1:], (state.d_mm, state.u))
-    return replace(state, u=u, d_mm=d_mm, history=history), stats
+    return replace(state, u=u, d_mm=d_mm, history=history, multipliers=multipliers), stats
 
 
 def initial_state(problem: Problem) -> PathState:
@@ -74,8 +108,10 @@ def initial_state(problem: Problem) -> PathState:
     return state
 
 
-def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: PathState | None = None):
-    """Yield (d_mm, u (n_nodes, 3), Stats) for increasing guide displacements at one angle."""
+def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: PathState | None = None,
+               with_state: bool = False):
+    """Yield (d_mm, u (n_nodes, 3), Stats) for increasing guide displacements at one angle, and the
+    PathState after each when `with_state` (to checkpoint a path, convergence.solve_resumable)."""
     if state is None:
         state = initial_state(problem)
     max_step = problem.scene.solver.max_step_mm
@@ -94,4 +130,5 @@ def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: Path
                 ) from None
             log.info("%.4g mm at beta %g deg: %d Newton iterations, %d CG, %d factorisations, %.1f s so far",
                      target, angle_deg, stats.iterations, stats.cg_iterations, stats.factorizations, time.perf_counter() - t0)
-        yield float(d), state.u.reshape(-1, 3).copy(), replace(stats, seconds=time.perf_counter() - t0)
+        out = (float(d), state.u.reshape(-1, 3).copy(), replace(stats, seconds=time.perf_counter() - t0))
+        yield (*out, state) if with_state else out

@@ -120,7 +120,9 @@ def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float, 
     if checkpoint.exists():
         with np.load(checkpoint) as z:
             history = tuple((float(d), h) for d, h in zip(z["history_d"], z["history_u"]))
-            state, seconds = PathState(z["u"], float(z["d_mm"]), history), float(z["seconds"])
+            multipliers = z["multipliers"] if "multipliers" in z.files else None
+            state = PathState(z["u"], float(z["d_mm"]), history, multipliers=multipliers)
+            seconds = float(z["seconds"])
         if state.d_mm >= displacement_mm - 1e-12:
             return state.u.reshape(-1, 3), seconds
         log.info("resuming %g mm, %g deg from %g mm", displacement_mm, angle_deg, state.d_mm)
@@ -128,12 +130,13 @@ def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float, 
     n = max(1, int(np.ceil((displacement_mm - start) / step - 1e-9)))
     targets = np.linspace(start, displacement_mm, n + 1)[1:]
     previous = list(state.history) + [(state.d_mm, state.u)] if state else []
-    for d, u, stats in solve_path(problem, targets, angle_deg, state):
+    for d, u, stats, state in solve_path(problem, targets, angle_deg, state, with_state=True):
         seconds += stats.seconds
         previous = (previous + [(d, u.ravel())])[-3:]
         hist = previous[:-1]
+        extra = {} if state.multipliers is None else {"multipliers": state.multipliers}
         atomic_savez(checkpoint, u=u.ravel(), d_mm=d, seconds=seconds, history_d=np.array([h[0] for h in hist]),
-                     history_u=np.stack([h[1] for h in hist]) if hist else np.zeros((0, u.size)))
+                     history_u=np.stack([h[1] for h in hist]) if hist else np.zeros((0, u.size)), **extra)
     return u, seconds
 
 

@@ -1,6 +1,7 @@
 """Newton's method with a backtracking line search for static equilibrium.
 
-Equilibrium r(u) = f_int(u) - f_ext = 0 on the free DOFs, u = g on the prescribed ones.
+Equilibrium r(u) = f_int(u) - f_ext (+ the guide tip's contact forces, contact.py) = 0 on the free
+DOFs, u = g on the prescribed ones.
 Newton correction: K_II du_I = -(r_I + K_ID du_D), du_D = g - u_D (so the first iteration after
 a change of g is the tangent predictor that carries the guide increment into the interior).
 K_II is solved by conjugate gradients preconditioned with the last PARDISO factorisation (above
@@ -16,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, cg
 
+from . import contact as ct
 from . import elasticity as el
 from .assembly import apply_matrix, assemble_matrix, assemble_vector
 from .linsolve import Factor, factorise, rigid_body_modes
@@ -35,6 +37,8 @@ class Stats:
     min_det_f: float = 1.0
     seconds: float = 0.0
     halvings: int = 0
+    contact_updates: int = 0  # augmented-Lagrangian multiplier updates (effects.guide_contact)
+    penetration_mm: float = 0.0  # deepest penetration of the wall into the tip left in the solution
 
     def record(self) -> dict:
         """The fields a snapshot file stores."""
@@ -80,6 +84,7 @@ class Eval(NamedTuple):
     pi: float
     Finv: np.ndarray | None = None
     J: np.ndarray | None = None
+    contact: ct.State | None = None
 
 
 def residual(p: Problem, u: np.ndarray) -> Eval:
@@ -98,13 +103,22 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
     r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
     if p.body_force is not None:
         r -= p.body_force
-    return Eval(r, min_j, pi, Finv, J)
+    touch = None
+    if p.contact is not None:
+        touch = ct.evaluate(p.contact, u, p.contact_load)
+        r += ct.scatter(p.contact, touch.force, p.n_dofs)
+        pi += touch.energy
+    return Eval(r, min_j, pi, Finv, J, touch)
 
 
 def _tangent(p: Problem, ev: Eval) -> np.ndarray:
     if p.nonlinear:
-        return el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam)
-    return el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+        Ke = el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam)
+    else:
+        Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+    if ev.contact is not None:
+        ct.add_stiffness(p.contact, Ke, ev.contact)
+    return Ke
 
 
 def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> tuple[np.ndarray, Stats]:

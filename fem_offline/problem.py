@@ -1,16 +1,17 @@
 """The discrete problem: P2 basis data, per-tet materials, constraints and loads for the effects a scene switches on.
 
 Materials: materials.py; boundary conditions (bones, table, guide): boundary.py and guide.py;
-gravity: gravity.py. Tets whose nodes are all fixed (the bones) cannot change K_II and are not
+gravity: gravity.py; the guide tip's contact with the wall: contact.py. Tets whose nodes are all fixed (the bones) cannot change K_II and are not
 assembled.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import contact as ct
 from . import elasticity as el
 from . import guide
 from .assembly import Pattern, build_pattern
@@ -35,6 +36,8 @@ class Problem:
     guide_weight: np.ndarray  # (n_patch,)
     body_force: np.ndarray | None  # (n_dofs,) or None when gravity is off
     active: np.ndarray | None = None  # (n_tets,) bool: the tets assembled (not all-constrained)
+    contact: ct.Surface | None = None  # effects.guide_contact: the lumen faces the tip can touch
+    contact_load: ct.Load | None = None  # where the tip is now (set by `at_guide`)
 
     @property
     def n_dofs(self) -> int:
@@ -47,6 +50,18 @@ class Problem:
     @property
     def nonlinear(self) -> bool:
         return self.scene.effects.geometric_nonlinearity
+
+    @property
+    def superposable(self) -> bool:
+        """Linear in the guide displacement: small strain and a glued guide (linear.py)."""
+        return not self.nonlinear and self.contact is None
+
+    def at_guide(self, displacement_mm: float, angle_deg: float, multipliers: np.ndarray | None = None) -> Problem:
+        """This problem with the contact tip at (d, beta) and the given multipliers (zero if None)."""
+        if self.contact is None:
+            return self
+        lam = np.zeros(self.contact.shape) if multipliers is None else multipliers
+        return replace(self, contact_load=ct.Load(ct.centre(self.contact, self.scene.guide, displacement_mm, angle_deg), lam))
 
     def dirichlet(self, displacement_mm: float, angle_deg: float) -> np.ndarray:
         """Prescribed displacement on all DOFs (zero where free): the guide's field d w a(beta)."""
@@ -79,8 +94,12 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     W = np.ascontiguousarray(basis.dx[active])
     mu, lam, rho = (x[active] for x in lame(scene, mesh))
     pattern = build_pattern(tets[active], len(mesh.nodes), np.flatnonzero(~constrained))
+    surface = None
+    if scene.effects.guide_contact:
+        surface = ct.build_surface(mesh, basis.mesh, tets, active, scene.guide)
     body = None
     if scene.effects.gravity:
         N = np.stack([basis.basis[a][0].value for a in range(10)])[:, active]  # (10, n_active, n_qp)
         body = body_force(N=N, W=W, density_kg_m3=rho, pattern=pattern)
-    return Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide_dofs, weight, body, active)
+    problem = Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide_dofs, weight, body, active, surface)
+    return problem.at_guide(0.0, 0.0)

@@ -120,9 +120,11 @@ class LabelMap(_Strict):
 class Guide(_Strict):
     """Rigid needle-guide tip pushing the rectal wall (its geometry and prescribed field: guide.py).
 
-    The tip moves by d * a(beta), a(beta) = axis rotated by beta about tilt_normal. Wall nodes
-    within patch_radius_mm of the tip follow it with the rounded-tip weight
-    w(r) = cos^2(pi r / (2 R)), so the prescribed field is smooth at the patch rim.
+    The tip moves by d * a(beta), a(beta) = axis rotated by beta about tilt_normal. By default wall
+    nodes within patch_radius_mm of the tip are glued to it with the rounded-tip weight
+    w(r) = cos^2(pi r / (2 R)), so the prescribed field is smooth at the patch rim. With
+    effects.guide_contact the tip is instead a rigid sphere of tip_radius_mm in frictionless contact
+    with the wall (contact.py).
     """
 
     tip_mm: Vec3 = (0.0, -14.0, 35.0)
@@ -132,6 +134,10 @@ class Guide(_Strict):
     # When set, the tip snaps to the nearest node of the rectal wall's lumen surface, which must lie
     # within snap_mm of it (guide.snap_tip). Label-map scenes default to SNAP_MM; the phantom's tip is exact.
     snap_mm: Annotated[float, Field(gt=0, le=20)] | None = None
+    # effects.guide_contact (contact.py): the rigid rounded tip, a sphere touching the wall at the tip
+    tip_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
+    contact_stiffness_kpa_mm: Annotated[float, Field(gt=0, le=1e8)] = 3e4  # augmented-Lagrangian penalty k
+    contact_tol_mm: Annotated[float, Field(gt=0, le=1)] = 0.005  # largest penetration left in a solution
 
     @model_validator(mode="after")
     def _axes(self) -> Guide:
@@ -154,6 +160,9 @@ class Effects(_Strict):
     table: bool = True  # frictionless table: bottom face slides, u_z = 0
     fixed_bones: bool = True  # pubic bone and spine held fixed
     gravity: bool = False
+    # The guide tip as a rigid sphere in frictionless contact with the wall (contact.py), instead of
+    # the glued patch. The linear model then is no longer superposable: each case is load-stepped.
+    guide_contact: bool = False
 
     @model_validator(mode="after")
     def _constrained(self) -> Effects:
@@ -261,17 +270,19 @@ class Scene(_Strict):
     def sha256(self) -> str:
         """Hash of the validated scene (canonical JSON), recorded with every artifact."""
         data = self.model_dump(mode="json")
-        # Fields added later are left out while unset, so the scenes, sweeps and models made before
-        # them keep their hashes.
-        for section, key in _LATER_FIELDS:
+        # Fields added later are left out while at their default, so the scenes, sweeps and models
+        # made before them keep their hashes.
+        for section, key, default in _LATER_FIELDS:
             parent = data if section is None else data[section]
-            if parent.get(key) is None:
+            if parent.get(key) == default:
                 parent.pop(key, None)
         blob = json.dumps(data, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()
 
 
-_LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"))
+_LATER_FIELDS = ((None, "label_map", None), ("guide", "snap_mm", None), ("guide", "tip_radius_mm", 6.0),
+                 ("guide", "contact_stiffness_kpa_mm", 3e4), ("guide", "contact_tol_mm", 0.005),
+                 ("effects", "guide_contact", False))
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")
 
 

@@ -1,7 +1,8 @@
 """One case, (guide displacement, angle) -> displacement field: the entry point over both models.
 
-Linear model: superposition of unit fields (linear.py). Nonlinear: load-stepped from rest by
-path continuation (continuation.py), with Newton and a line search at each step (newton.py).
+Linear model with a glued guide: superposition of unit fields (linear.py). Nonlinear, or with the
+guide in contact (contact.py): load-stepped from rest by path continuation (continuation.py), with
+Newton and a line search at each step (newton.py).
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from .problem import Problem
 
 def solve_case(problem: Problem, displacement_mm: float, angle_deg: float,
                step_mm: float | None = None) -> tuple[np.ndarray, Stats]:
-    """One case: (u (n_nodes, 3), Stats). Nonlinear cases are load-stepped from zero in steps <= step_mm."""
+    """One case: (u (n_nodes, 3), Stats). Path-solved cases are load-stepped from zero in steps <= step_mm."""
     t0 = time.perf_counter()
-    if not problem.nonlinear:
+    if problem.superposable:
         u = superpose(linear_modes(problem), displacement_mm, angle_deg)
         return u, Stats(factorizations=1, seconds=time.perf_counter() - t0)
     if step_mm is not None:

@@ -1,7 +1,7 @@
 """Snapshot sweep over guide displacement x angle: resumable, atomic, on a process pool or Dask.
 
 The output folder's format is contracts.sweep (manifest.json, mesh.npz, snapshots/*.npz).
-Each nonlinear angle is one path, warm-started from one displacement to the next. A path that was
+Each nonlinear (or contact) angle is one path, warm-started from one displacement to the next. A path that was
 interrupted resumes from its last written snapshot; finished snapshots are never recomputed, and a
 folder of another scene is refused.
 On a mirror-symmetric scene (mirror.py) only the paths with beta >= 0 are solved; each beta < 0
@@ -238,9 +238,10 @@ def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str
     t0 = time.perf_counter()
     errors: list[str] = []
     with tqdm(total=total, initial=total - n_pending, unit="snap", desc=scene.name) as progress:
-        if not scene.effects.geometric_nonlinearity and n_pending:
+        superposable = not (scene.effects.geometric_nonlinearity or scene.effects.guide_contact)
+        if superposable and n_pending:
             _write_linear(scene, mesh, out, [c for p in pending for c in p], progress)
-        elif scene.effects.geometric_nonlinearity and n_pending:
+        elif n_pending:  # one path per angle: nonlinear, or linear with the guide in contact
             image, twins = _mirror_pairs(scene, mesh, paths)
             # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
             todo = [full for i, (full, p) in enumerate(zip(paths, pending)) if p and i not in twins]

@@ -1,6 +1,7 @@
 """Grid-convergence study of the nonlinear FE at the prostate (Roache's GCI) -> docs/convergence.{json,md,png}.
 
     python scripts/convergence_study.py [--scales 1.69 1.3 1] [--out runs/convergence] [--docs docs]
+    python scripts/convergence_study.py --contact --step-mm 0.5     # the guide tip in contact -> docs/convergence_contact.*
 
 Meshes the scene with every size multiplied by each scale (a constant ratio between levels),
 solves the hard cases on each, resumably (every converged load step is checkpointed under --out;
@@ -46,7 +47,7 @@ def _fmt(r: dict) -> str:
     return f"{v[0]:.3f} / {v[1]:.3f} / {v[2]:.3f} | {r['kind']} | {p} | {ext} | {r['gci_fine_mm']:.3f}"
 
 
-def markdown(result: dict, command: str, seconds: float) -> str:
+def markdown(result: dict, command: str, seconds: float, image: str = "convergence.png") -> str:
     lv = result["levels"]
     lines = ["# Grid convergence at the prostate", "",
              f"Written by `{command}` ({seconds / 60:.0f} min of solving, summed over the levels).", "",
@@ -76,7 +77,7 @@ def markdown(result: dict, command: str, seconds: float) -> str:
         lines.append(f"| every node: pointwise band ({row['all_nodes']['n_points']} points) | max {g['max']:.3f}, "
                      f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {row['all_nodes']['mean_kind']} | | | | |")
         lines.append("")
-    lines += ["![convergence](convergence.png)", ""]
+    lines += [f"![convergence]({image})", ""]
     return "\n".join(lines)
 
 
@@ -101,32 +102,48 @@ def plot(raw: dict, result: dict, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def study_scene(path: Path, *, contact: bool = False, step_mm: float | None = None):
+    """The scene, with the guide in contact and another load step if asked."""
+    scene = load_scene(path)
+    if contact:
+        scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": True})})
+    if step_mm:
+        scene = scene.model_copy(update={"solver": scene.solver.model_copy(update={"max_step_mm": step_mm})})
+    return scene
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
     ap.add_argument("--scales", type=float, nargs="+", default=[1.69, 1.3, 1.0], help="size multipliers, coarsest first")
-    ap.add_argument("--out", type=Path, default=Path("runs/convergence"), help="meshes and checkpoints (resumable)")
+    ap.add_argument("--contact", action="store_true",
+                    help="switch on effects.guide_contact (the rigid tip in frictionless contact) instead of the glued patch")
+    ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
+    ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()
-    raw = run_study(load_scene(args.scene), args.scales, args.out)
+    name = "convergence_contact" if args.contact else "convergence"
+    scene = study_scene(args.scene, contact=args.contact, step_mm=args.step_mm)
+    raw = run_study(scene, args.scales, args.out or Path("runs") / name)
     result = analyse(raw)
     seconds = sum(sum(lv["cases"][c]["seconds"] for c in lv["cases"]) for lv in raw["levels"])
     args.docs.mkdir(parents=True, exist_ok=True)
     small = {"levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} | {"cases": {
         c: {k: v for k, v in lv["cases"][c].items() if k not in BIG} for c in lv["cases"]}} for lv in raw["levels"]],
         "probes": {k: v for k, v in raw["probes"].items() if k not in BIG}, "analysis": result}
-    (args.docs / "convergence.json").write_text(json.dumps(_clean(small), allow_nan=False, indent=1) + "\n")
+    (args.docs / f"{name}.json").write_text(json.dumps(_clean(small), allow_nan=False, indent=1) + "\n")
     command = "python scripts/convergence_study.py --scales " + " ".join(f"{s:g}" for s in args.scales)
-    (args.docs / "convergence.md").write_text(markdown(_clean(result), command, seconds))
-    plot(raw, result, args.docs / "convergence.png")
+    command += " --contact" * args.contact + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
+    (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
+    plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():
         m = max(r["gci_vector_mm"] for r in row["markers"])
         near, rest = row["surface_near_tip"]["gci_mm"], row["surface_rest"]["gci_mm"]
         print(f"{case}: markers GCI max {m:.3f} mm; prostate surface band near tip max {near['max']:.3f} mm, "
               f"rest max {rest['max']:.3f} mm, mean {rest['mean']:.3f} mm")
-    print(f"wrote {args.docs / 'convergence.md'} ({time.perf_counter() - t0:.0f} s this run)")
+    print(f"wrote {args.docs / (name + '.md')} ({time.perf_counter() - t0:.0f} s this run)")
     return 0
 
 
