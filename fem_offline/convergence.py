@@ -69,16 +69,19 @@ def richardson(coarse: float, medium: float, fine: float, ratio: float) -> Richa
 
 
 def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: float,
-              order: Richardson | None = None) -> tuple[np.ndarray, Richardson]:
-    """Per-point error band of the fine field (k,) in mm, from one observed order for the whole field.
+              order: Richardson | None = None, level: str = "fine") -> tuple[np.ndarray, Richardson]:
+    """Per-point error band (k,) in mm of the fine field (or, with level="medium", of the medium one),
+    from one observed order for the whole field.
 
     coarse, medium, fine: (k, 3) displacements at the same reference points. The order is `order`'s
     if given (one order for every region of a case keeps their bands consistent), else that of the
-    field's mean |u|. Without monotonic convergence, the band is Fs times the larger pointwise change.
+    field's mean |u|. Monotonic: GCI_fine = Fs |u1 - u2| / (r^q - 1), GCI_medium = Fs |u2 - u3| / (r^q - 1)
+    (Roache). Otherwise the band of either level is Fs times the larger pointwise change.
     """
     mean = order or richardson(*(np.linalg.norm(u, axis=1).mean() for u in (coarse, medium, fine)), ratio)
     if mean.kind == "monotonic":
-        return SAFETY * np.linalg.norm(fine - medium, axis=1) / (ratio ** min(mean.order, P_FORMAL) - 1.0), mean
+        a, b = (fine, medium) if level == "fine" else (medium, coarse)
+        return SAFETY * np.linalg.norm(a - b, axis=1) / (ratio ** min(mean.order, P_FORMAL) - 1.0), mean
     spread = np.maximum(np.linalg.norm(fine - medium, axis=1), np.linalg.norm(medium - coarse, axis=1))
     return SAFETY * spread, mean
 
@@ -88,6 +91,18 @@ def scaled_scene(scene: Scene, scale: float) -> Scene:
     m = scene.mesh
     sizes = {"max_mm": m.max_mm * scale, "prostate_mm": m.prostate_mm * scale, "guide_mm": m.guide_mm * scale}
     return scene.model_copy(update={"mesh": m.model_copy(update=sizes)})
+
+
+def study_scene(path, *, contact: bool = False, step_mm: float | None = None) -> Scene:
+    """The scene file, with the guide tip in contact (effects.guide_contact) and another load step if asked."""
+    from .scene import load_scene
+
+    scene = load_scene(path)
+    if contact:
+        scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": True})})
+    if step_mm:
+        scene = scene.model_copy(update={"solver": scene.solver.model_copy(update={"max_step_mm": step_mm})})
+    return scene
 
 
 def probe_points(mesh, scene: Scene) -> dict[str, np.ndarray]:
@@ -202,19 +217,22 @@ def analyse(raw: dict) -> dict:
         row = {"seconds": [lv["cases"][case]["seconds"] for lv in (coarse, medium, fine)]}
         # one order per case, that of the mean |u| over every node, for every pointwise band below
         nodes_band, order = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio)
+        nodes_medium, _ = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio, order, level="medium")
         row["all_nodes"] = {"n_points": len(nodes_band), "mean_order": order.order, "mean_kind": order.kind,
-                            "gci_mm": _summary(nodes_band)}
+                            "gci_mm": _summary(nodes_band), "gci_medium_mm": _summary(nodes_medium)}
         for group in ("markers", "interior"):
             mags = [np.linalg.norm(u[group], axis=1) for u in (u3, u2, u1)]
             band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order)
-            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g)}
-                          for a, b, c, g in zip(*mags, band)]
+            medium_band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order, level="medium")
+            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g), "gci_vector_medium_mm": float(h)}
+                          for a, b, c, g, h in zip(*mags, band, medium_band)]
         for zone, mask in (("near_tip", near), ("rest", ~near)):
             s3, s2, s1 = (u["prostate_surface"][mask] for u in (u3, u2, u1))
             mags = [np.linalg.norm(u, axis=1) for u in (s3, s2, s1)]
             band, _ = field_gci(s3, s2, s1, ratio, order)
+            medium_band, _ = field_gci(s3, s2, s1, ratio, order, level="medium")
             row[f"surface_{zone}"] = {
-                "n_points": int(mask.sum()), "gci_mm": _summary(band),
+                "n_points": int(mask.sum()), "gci_mm": _summary(band), "gci_medium_mm": _summary(medium_band),
                 "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}

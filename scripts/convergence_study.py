@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_offline.convergence import NEAR_TIP_MM, analyse, run_study
-from fem_offline.scene import load_scene
+from fem_offline.convergence import NEAR_TIP_MM, analyse, run_study, study_scene
 
 
 BIG = ("prostate_surface", "nodes")  # fields at thousands of points: summarised, not stored
@@ -100,16 +99,6 @@ def plot(raw: dict, result: dict, path: Path) -> None:
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-
-
-def study_scene(path: Path, *, contact: bool = False, step_mm: float | None = None):
-    """The scene, with the guide in contact and another load step if asked."""
-    scene = load_scene(path)
-    if contact:
-        scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": True})})
-    if step_mm:
-        scene = scene.model_copy(update={"solver": scene.solver.model_copy(update={"max_step_mm": step_mm})})
-    return scene
 
 
 def main() -> int:

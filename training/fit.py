@@ -108,21 +108,29 @@ def region_errors(session, inputs: np.ndarray, reference: np.ndarray, node_sets:
 
 def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
     """Per-region GCI band (mm) of the FE on `mesh`, max over the hard cases of a convergence study
-    (scripts/convergence_study.py's JSON), and a sentence saying what it is measured against."""
+    (scripts/convergence_study.py's JSON), and a sentence saying what it is measured against.
+
+    `mesh` must be the study's finest level (its GCI_fine) or the one before it (GCI_medium)."""
     import json
 
     study = json.loads(Path(path).read_text())["analysis"]
-    fine = study["levels"][-1]
-    if (fine["n_tets"], fine["n_nodes"]) != (len(mesh.tets), len(mesh.nodes)):
-        raise ValueError(f"--fe-error: {path}'s finest level has {fine['n_tets']} tets and {fine['n_nodes']} nodes, "
-                         f"the sweep's mesh {len(mesh.tets)} and {len(mesh.nodes)}: not the same mesh")
+    which = [lv for lv in ("fine", "medium")
+             if (study["levels"][-1 if lv == "fine" else -2]["n_tets"], study["levels"][-1 if lv == "fine" else -2]["n_nodes"])
+             == (len(mesh.tets), len(mesh.nodes))]
+    if not which:
+        sizes = " and ".join(f"{lv['n_tets']} tets / {lv['n_nodes']} nodes" for lv in study["levels"][-2:])
+        raise ValueError(f"--fe-error: the sweep's mesh ({len(mesh.tets)} tets, {len(mesh.nodes)} nodes) is neither of "
+                         f"{path}'s two finest levels ({sizes}): not a mesh of that study")
+    suffix = "" if which[0] == "fine" else "_medium"
     rows = study["cases"].values()
-    bands = {"markers": max(max(r["gci_vector_mm"] for r in row["markers"]) for row in rows),
-             "prostate_surface": max(max(row[f"surface_{z}"]["gci_mm"]["max"] for z in ("near_tip", "rest")) for row in rows),
-             "all_nodes": max(row["all_nodes"]["gci_mm"]["max"] for row in rows)}
+    bands = {"markers": max(max(r[f"gci_vector{suffix}_mm"] for r in row["markers"]) for row in rows),
+             "prostate_surface": max(max(row[f"surface_{z}"][f"gci{suffix}_mm"]["max"] for z in ("near_tip", "rest"))
+                                     for row in rows),
+             "all_nodes": max(row["all_nodes"][f"gci{suffix}_mm"]["max"] for row in rows)}
     levels = ", ".join(f"{lv['n_tets']:,}" for lv in study["levels"])
-    text = (f"FE discretisation: grid convergence index (Fs 1.25) of this mesh against the Richardson estimate from "
-            f"3 meshes ({levels} tets, size ratio {study['ratio']:.2f}), max over the cases {', '.join(study['cases'])}")
+    text = (f"FE discretisation: grid convergence index (Fs 1.25) of this mesh, the study's {which[0]} level, against "
+            f"the Richardson estimate from 3 meshes ({levels} tets, size ratio {study['ratio']:.2f}), max over the "
+            f"cases {', '.join(study['cases'])}")
     return bands, text
 
 

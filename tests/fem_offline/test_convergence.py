@@ -44,6 +44,8 @@ def test_field_band_is_the_pointwise_distance_to_the_limit():
     band, mean = field_gci(coarse, medium, fine, r)
     assert mean.kind == "monotonic" and mean.order == pytest.approx(2.0, rel=1e-10)
     np.testing.assert_allclose(band, SAFETY * np.linalg.norm(fine - u0, axis=1), rtol=1e-10)
+    medium_band, _ = field_gci(coarse, medium, fine, r, level="medium")  # p = 2 = P_FORMAL: exact for the medium too
+    np.testing.assert_allclose(medium_band, SAFETY * np.linalg.norm(medium - u0, axis=1), rtol=1e-10)
 
 
 def test_scaled_scene_scales_every_size_together(tiny_scene):

@@ -151,3 +151,26 @@ def test_cli_writes_the_model_its_flags_ask_for_and_prints_its_metrics(tiny_swee
     assert [(r.displacement_mm, r.angle_deg) for r in m.metrics.table3] == [(5.0, -2.0)]
     e_nn = float(re.search(r"e_NN ([0-9.]+) mm", run.stdout).group(1))  # the printed line states the stored metric
     assert e_nn == pytest.approx(m.metrics.table3_summary.e_nn_mm, abs=5e-5)
+
+
+def test_fe_band_is_the_studys_band_of_the_model_mesh_level(tmp_path):
+    """--fe-error picks GCI_fine for the finest level, GCI_medium for the one before, and refuses any other mesh."""
+    from types import SimpleNamespace
+
+    from training.fit import fe_discretisation
+
+    def zone(fine, medium):
+        return {"gci_mm": {"max": fine}, "gci_medium_mm": {"max": medium}}
+
+    case = {"markers": [{"gci_vector_mm": 0.1, "gci_vector_medium_mm": 0.3}, {"gci_vector_mm": 0.05, "gci_vector_medium_mm": 0.4}],
+            "surface_near_tip": zone(0.7, 1.5), "surface_rest": zone(0.2, 0.6), "all_nodes": zone(0.9, 2.0)}
+    levels = [{"n_tets": n, "n_nodes": 2 * n} for n in (100, 200, 400)]
+    study = tmp_path / "study.json"
+    study.write_text(json.dumps({"analysis": {"levels": levels, "ratio": 1.3, "cases": {"10 mm, 0 deg": case}}}))
+    mesh = lambda n: SimpleNamespace(tets=np.zeros((n, 10)), nodes=np.zeros((2 * n, 3)))  # noqa: E731
+    fine, text = fe_discretisation(study, mesh(400))
+    assert fine == {"markers": 0.1, "prostate_surface": 0.7, "all_nodes": 0.9} and "fine level" in text
+    medium, text = fe_discretisation(study, mesh(200))
+    assert medium == {"markers": 0.4, "prostate_surface": 1.5, "all_nodes": 2.0} and "medium level" in text
+    with pytest.raises(ValueError, match="neither of"):
+        fe_discretisation(study, mesh(100))
