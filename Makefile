@@ -67,6 +67,8 @@ test-fast: $(STAMP)
 
 # Studies and benchmarks (README, "Commands"). Each prints what it measured; run one at a time.
 RUNS ?= runs/default
+# Mesh levels of the contact study (every size times each; ratio 1.3); the glued one stays at three.
+SCALES ?= 1.69 1.3 1
 bench: $(STAMP)
 	MKL_NUM_THREADS=1 $(PY) scripts/bench_fem.py
 
@@ -76,9 +78,12 @@ bench-service: $(STAMP)
 tradeoff: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid
 
-# The grid-convergence study (docs/convergence.*); resumable: run it again to go on.
+# The grid-convergence studies of both guide-wall models (docs/convergence_contact.*, docs/convergence.*)
+# and their comparison (docs/contact_vs_glued.*); resumable: run it again to go on.
 convergence: $(STAMP)
-	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py
+	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(SCALES)
+	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide glued --scales 1.69 1.3 1
+	$(PY) scripts/contact_vs_glued.py
 
 # Up to which displacement the linear model is a deformation (docs/linear_validity.*); seconds. With the
 # scene's nonlinear sweep in $(RUNS) it compares with it on the same mesh (e.g. RUNS=runs/default_conv).
@@ -90,7 +95,7 @@ default-model: $(STAMP)
 	$(PY) -m fem_offline sweep --scene fem_offline/scenes/default.toml --out $(RUNS)
 	$(PY) -m fem_offline cases --scene fem_offline/scenes/default.toml --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 24 --seed 0
 	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 40 --offgrid $(RUNS)/offgrid \
-	    --fe-error docs/convergence.json
+	    --fe-error docs/convergence_contact.json
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
 container-test:

@@ -93,13 +93,13 @@ def scaled_scene(scene: Scene, scale: float) -> Scene:
     return scene.model_copy(update={"mesh": m.model_copy(update=sizes)})
 
 
-def study_scene(path, *, contact: bool = False, step_mm: float | None = None) -> Scene:
-    """The scene file, with the guide tip in contact (effects.guide_contact) and another load step if asked."""
+def study_scene(path, *, contact: bool | None = None, step_mm: float | None = None) -> Scene:
+    """The scene file, with the guide in contact or glued (effects.guide_contact) and another load step if asked."""
     from .scene import load_scene
 
     scene = load_scene(path)
-    if contact:
-        scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": True})})
+    if contact is not None:
+        scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": contact})})
     if step_mm:
         scene = scene.model_copy(update={"solver": scene.solver.model_copy(update={"max_step_mm": step_mm})})
     return scene

@@ -1,7 +1,8 @@
 """Grid-convergence study of the nonlinear FE at the prostate (Roache's GCI) -> docs/convergence.{json,md,png}.
 
     python scripts/convergence_study.py [--scales 1.69 1.3 1] [--out runs/convergence] [--docs docs]
-    python scripts/convergence_study.py --contact --step-mm 0.5     # the guide tip in contact -> docs/convergence_contact.*
+    python scripts/convergence_study.py --guide contact --step-mm 0.5   # -> docs/convergence_contact.*, runs/convergence_contact
+    python scripts/convergence_study.py --guide glued                   # -> docs/convergence.*, runs/convergence
 
 Meshes the scene with every size multiplied by each scale (a constant ratio between levels),
 solves the hard cases on each, resumably (every converged load step is checkpointed under --out;
@@ -105,16 +106,16 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
     ap.add_argument("--scales", type=float, nargs="+", default=[1.69, 1.3, 1.0], help="size multipliers, coarsest first")
-    ap.add_argument("--contact", action="store_true",
-                    help="switch on effects.guide_contact (the rigid tip in frictionless contact) instead of the glued patch")
+    ap.add_argument("--guide", choices=("contact", "glued"),
+                    help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: the scene's)")
     ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
     ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()
-    name = "convergence_contact" if args.contact else "convergence"
-    scene = study_scene(args.scene, contact=args.contact, step_mm=args.step_mm)
+    scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact", step_mm=args.step_mm)
+    name = "convergence_contact" if scene.effects.guide_contact else "convergence"
     raw = run_study(scene, args.scales, args.out or Path("runs") / name)
     result = analyse(raw)
     seconds = sum(sum(lv["cases"][c]["seconds"] for c in lv["cases"]) for lv in raw["levels"])
@@ -124,7 +125,7 @@ def main() -> int:
         "probes": {k: v for k, v in raw["probes"].items() if k not in BIG}, "analysis": result}
     (args.docs / f"{name}.json").write_text(json.dumps(_clean(small), allow_nan=False, indent=1) + "\n")
     command = "python scripts/convergence_study.py --scales " + " ".join(f"{s:g}" for s in args.scales)
-    command += " --contact" * args.contact + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
+    command += (f" --guide {args.guide}" if args.guide else "") + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():
