@@ -28,6 +28,7 @@ from .export import build_graph, folded_layers, reference_decode
 from .metrics import ANGLE_FLOOR_MM, case_errors, summarise
 from .pca import Pca, fit_pca
 from .snapshots import Snapshots, read_offgrid, read_sweep, valid_part
+from .tradeoff import gci_bands
 
 log = logging.getLogger(__name__)
 
@@ -116,10 +117,7 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
     if (fine["n_tets"], fine["n_nodes"]) != (len(mesh.tets), len(mesh.nodes)):
         raise ValueError(f"--fe-error: {path}'s finest level has {fine['n_tets']} tets and {fine['n_nodes']} nodes, "
                          f"the sweep's mesh {len(mesh.tets)} and {len(mesh.nodes)}: not the same mesh")
-    rows = study["cases"].values()
-    bands = {"markers": max(max(r["gci_vector_mm"] for r in row["markers"]) for row in rows),
-             "prostate_surface": max(max(row[f"surface_{z}"]["gci_mm"]["max"] for z in ("near_tip", "rest")) for row in rows),
-             "all_nodes": max(row["all_nodes"]["gci_mm"]["max"] for row in rows)}
+    bands = gci_bands(study)
     levels = ", ".join(f"{lv['n_tets']:,}" for lv in study["levels"])
     text = (f"FE discretisation: grid convergence index (Fs 1.25) of this mesh against the Richardson estimate from "
             f"3 meshes ({levels} tets, size ratio {study['ratio']:.2f}), max over the cases {', '.join(study['cases'])}")
