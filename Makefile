@@ -75,8 +75,13 @@ bench: $(STAMP)
 bench-service: $(STAMP)
 	$(PY) scripts/bench_service.py --model $(MODEL)
 
+# Accuracy vs time on the end-to-end error (docs/tradeoff.*): $(RUNS) must be a sweep on one level of the
+# convergence study ($(CONVERGENCE)), e.g. RUNS=runs/default_conv; the tiny-mesh check builds its two sweeps once.
+# The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
+CONVERGENCE ?= docs/convergence.json
 tradeoff: $(STAMP)
-	MKL_NUM_THREADS=2 $(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid
+	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
+	    --mesh-check runs/tiny_mesh_check
 
 # The grid-convergence studies of both guide-wall models (docs/convergence_contact.*, docs/convergence.*)
 # and their comparison (docs/contact_vs_glued.*); resumable: run it again to go on.

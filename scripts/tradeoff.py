@@ -1,278 +1,395 @@
-"""What accuracy costs in time: every row measured on this machine in one run -> docs/tradeoff.md + .png.
+"""What accuracy costs in time, end to end: mesh level x PCA rank x network on one Pareto front -> docs/tradeoff.{md,png}.
 
-    python scripts/tradeoff.py --sweep runs/default --offgrid runs/default/offgrid [--out docs]
+    python scripts/tradeoff.py --sweep runs/default_conv --offgrid runs/default_conv/offgrid \\
+        --convergence docs/convergence.json --mesh-check runs/tiny_mesh_check [--out docs]
 
-Rows (errors are max and p99 nodal errors in mm; times are medians of repeated runs):
-  FE mesh fidelity  linear solve per snapshot vs error against the finest mesh, at probe points
-                    inside the prostate, for beta = -10, 0, 10 deg at 10 mm
-  FE physics        linear vs geometrically nonlinear: whole-sweep time vs their difference
-  PCA rank          reconstruction and held-out error, full-mesh decode latency
-  network           width/depth: held-out error, training time, decode latency
-  precision/region  float32 vs float16 basis; full mesh vs a region
-  FE vs surrogate   one query: FE solve vs decode (the paper: 11.1 min vs 0.04 s)
-Held-out error = worst over the paper's five samples and the off-grid cases, float32 ONNX model.
+Every configuration (mesh level L of the convergence study, PCA rank r, network w) is one point:
+  error    end to end, per region: e_surrogate(r, w) + e_FE(L) (training/tradeoff.py states both):
+           the model against the best converged estimate, not against its own mesh's FE. Regions:
+           markers on every level; prostate surface on the two finest levels only (what the JSON
+           stores, see training/tradeoff.py); every node on the finest only (in the table).
+  latency  one onnxruntime call of the exported float32 graph, 1 thread, batch 1, median of repeats,
+           all nodes (the plotted axis) and the prostate-surface subset (in the table). A level
+           without a sweep is timed on a graph of the same shapes with a random basis.
+  build    the 840-case sweep's wall time on WORKERS processes: estimated for every level as
+           ceil(paths / workers) x that level's full-push solve time in the convergence JSON
+           (mirror symmetry: the sweep solves the beta >= 0 paths only), the measured sweep beside
+           it for the sweep's level; plus the PCA + training time of (r, w).
+Assumption: e_surrogate is measured on the sweep's level only (the only 840-case sweep) and added
+to every level's e_FE. --mesh-check fits the same way on the tiny scene at two mesh sizes (nonlinear
+1 mm x 2 deg sweeps, built there if missing: about 4 min of FE once) to show how much it moves.
+Held-out cases: the paper's five Table 3 samples and the off-grid cases inside the sweep's valid envelope.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shlex
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
+# One thread for numpy and torch, set before they load: the fits' round-off (and so where L-BFGS stops)
+# then does not depend on the machine's cores or load, and a shared 2-core machine is not oversubscribed
+# (2 threads there made one fit up to 40x slower). The decode timings use 1 onnxruntime thread anyway.
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from contracts.interpolate import PointLocator, interpolate
-from contracts.model import onnx_session
-from fem_offline.linear import linear_modes, min_det_f, superpose
-from fem_offline.linsolve import AMG_MIN_DOFS
-from fem_offline.meshing import mesh_for_scene
-from fem_offline.problem import build_problem
-from fem_offline.scene import load_scene
-from fem_offline.validity import table_validity
-from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, training_set
-from training.snapshots import read_offgrid, read_sweep, snapshots_of
+import numpy as np  # noqa: E402
 
-# the last is paper scale (225,938 tets, fem_offline/scenes/paper_scale.toml): solved by AMG-CG, the reference
-MESH_SIZES = [(16.0, 6.0, 2.5), (12.0, 4.0, 2.0), (8.0, 2.7, 1.35), (6.0, 2.0, 1.0), (4.8, 1.6, 0.8), (3.5, 1.15, 0.58)]
+from contracts.model import onnx_session, read_manifest  # noqa: E402
+from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, region_errors, training_set  # noqa: E402
+from training.snapshots import read_offgrid, read_sweep, valid_part  # noqa: E402
+from training.tradeoff import (decode_seconds, end_to_end, level_errors, makespan, pareto_mask,  # noqa: E402
+                               shaped_graph, solved_path_seconds, sweep_estimate)
 
-
-def median_time(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+RANKS = (8, 16, 24, 32, 40, 48)
+NETWORKS = ((30, 1), (60, 1), (120, 1), (60, 2))  # (width, depth)
+DEFAULT = (40, 60, 1)  # models/default: rank, width, depth
+WORKERS = 2  # the sweep's default process count, as the measured sweep ran
+MESH_CHECK_SCALES = (1.69, 1.0)
+MESH_CHECK_RANKS = (8, 16, 24)
+MESH_CHECK_HELD_OUT = ((8.0, -6.0), (4.0, -4.0), (5.0, -2.0), (2.0, 0.0), (3.0, 2.0))  # on the 1 mm x 2 deg grid
+SHOWN = ("markers", "prostate_surface")
 
 
-def nodal(pred: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
-    e = np.linalg.norm(pred - ref, axis=-1).ravel()
-    return float(e.max()), float(np.percentile(e, 99))
+def held_out(sweep, offgrid: Path, test_cases):
+    """(training inputs, rows, held-out inputs, held-out displacements) inside the sweep's valid envelope."""
+    data, envelope, _ = valid_part(sweep)
+    test, inputs, rows = training_set(data, test_cases)
+    h_in, h_ref = data.inputs[test], data.displacement[test]
+    if offgrid is not None:
+        og_in, og_ref = read_offgrid(offgrid, len(sweep.mesh.nodes))
+        inside = np.array([envelope.contains(*x) for x in og_in], dtype=bool)
+        h_in, h_ref = np.concatenate([h_in, og_in[inside]]), np.concatenate([h_ref, og_ref[inside]])
+    return inputs, rows, h_in, h_ref
 
 
-def row(group, setting, err, seconds, note="", **extra):
-    return {"group": group, "setting": setting, "max_mm": err[0], "p99_mm": err[1], "seconds": seconds, "note": note, **extra}
-
-
-def fe_mesh_rows(scene_path: Path) -> list[dict]:
-    base = load_scene(scene_path)
-    base = base.model_copy(update={"effects": base.effects.model_copy(update={"geometric_nonlinearity": False})})
-    fields, meshes, times, solvers = [], [], [], []
-    for mx, pr, gd in MESH_SIZES:
-        scene = base.model_copy(update={"mesh": base.mesh.model_copy(update={"max_mm": mx, "prostate_mm": pr, "guide_mm": gd})})
-        mesh = mesh_for_scene(scene)
-        problem = build_problem(scene, mesh)
-        runs = []
-        for _ in range(3 if len(mesh.tets) < 30000 else 1):
-            t0 = time.perf_counter()
-            modes = linear_modes(problem)
-            runs.append(time.perf_counter() - t0)
-        t = float(np.median(runs))
-        del problem
-        fields.append(modes)
-        meshes.append(mesh)
-        times.append(t)
-        solver = "AMG-CG" if 3 * len(mesh.nodes) >= AMG_MIN_DOFS else "PARDISO"
-        solvers.append(solver)
-        print(f"  mesh {mx}/{pr}/{gd} mm: {len(mesh.tets)} tets, linear solve ({solver}) {t:.2f} s", flush=True)
-    # probes: the coarsest mesh's prostate nodes, which lie inside every finer mesh
-    coarse = meshes[0]
-    probes = coarse.nodes[np.unique(coarse.tets[coarse.tissue == coarse.tissue_names.index("prostate")])]
-
-    def at_probes(mesh, field):
-        tet, bary = PointLocator(mesh.nodes, mesh.tets).locate(probes)
-        assert (tet >= 0).all()
-        return interpolate(field[mesh.tets[tet]], bary)
-
-    rows = []
-    for beta in (-10.0, 0.0, 10.0):
-        vals = [at_probes(mesh, superpose(modes, 10.0, beta)) for mesh, modes in zip(meshes, fields)]
-        ref = vals[-1]
-        for i, v in enumerate(vals[:-1]):
-            rows.append((i, nodal(v, ref)))
+def fit_configs(sweep, offgrid, ranks, networks, test_cases=PAPER_TEST_CASES) -> list[dict]:
+    """Fit every (rank, network) on the sweep; surrogate error per region on the held-out cases."""
+    inputs, rows, h_in, h_ref = held_out(sweep, offgrid, test_cases)
     out = []
-    for i, (mesh, t) in enumerate(zip(meshes[:-1], times[:-1])):
-        errs = [e for j, e in rows if j == i]
-        out.append(row("FE mesh (linear)", f"{len(mesh.tets)} tets", (max(e[0] for e in errs), max(e[1] for e in errs)), t,
-                       f"sizes {MESH_SIZES[i]} mm; {solvers[i]}; vs {len(meshes[-1].tets)} tets", kind="query"))
-    out.append(row("FE mesh (linear)", f"{len(meshes[-1].tets)} tets (reference)", (0.0, 0.0), times[-1],
-                   f"paper scale; {solvers[-1]}; the reference", kind="reference"))
+    for rank in ranks:
+        for width, depth in networks:
+            t0 = time.perf_counter()
+            fitted = fit_surrogate(inputs, rows, FitOptions(rank=rank, width=width, depth=depth))
+            train_s = time.perf_counter() - t0
+            onnx = fitted.onnx_bytes()
+            err = region_errors(onnx_session(onnx), h_in, h_ref, sweep.mesh.node_sets)
+            out.append({"rank": rank, "width": width, "depth": depth, "surrogate_mm": err, "train_s": train_s,
+                        "iterations": fitted.info["iterations"], "layers": fitted.layers, "onnx": onnx,
+                        "n_held_out": len(h_in)})
+            print(f"  rank {rank:2d} {depth}x{width:<3d}: markers {err['markers']:.5f} mm, surface "
+                  f"{err['prostate_surface']:.5f} mm, {fitted.info['iterations']} iterations, {train_s:.1f} s", flush=True)
     return out
 
 
-def physics_rows(sweep, scene_path: Path) -> list[dict]:
-    scene = load_scene(scene_path)
-    lin_scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"geometric_nonlinearity": False})})
-    problem = build_problem(lin_scene, sweep.mesh)
-    t_lin = median_time(lambda: linear_modes(problem), 3)
-    modes = linear_modes(problem)
-    lin = superpose(modes, sweep.inputs[:, 0], sweep.inputs[:, 1])
-    err = nodal(lin, sweep.displacement)
-    # where the linear answer stops being a deformation (det F <= 0 at a quadrature point): not a cheaper
-    # stand-in for the nonlinear sweep beyond it (docs/linear_validity.md)
-    grid = sweep.manifest.grid
-    valid, _ = table_validity(grid.displacements_mm,
-                              np.array([min_det_f(problem, modes, grid.displacements_mm, a) for a in grid.angles_deg]))
-    # the wall time of the sweep's last run: a sweep run in one go states its whole time
-    nl_seconds = sweep.manifest.wall_seconds_this_run
-    return [row("FE physics", "linear, whole 840 sweep", err, t_lin,
-                f"vs the nonlinear snapshots; inverts elements beyond {valid:g} mm", kind="sweep"),
-            row("FE physics", "nonlinear, whole 840 sweep", (0.0, 0.0), nl_seconds, "sweep wall time from its manifest (last run)", kind="sweep")]
+def points(configs, levels, sweep_level, sweep, repeat: int) -> list[dict]:
+    """One point per (level, configuration): end-to-end error and decode latency (full mesh, surface subset)."""
+    surface = np.asarray(sweep.mesh.node_sets["prostate_surface"])
+    pts = []
+    for lv in levels:
+        own = lv is sweep_level
+        # the surface's node count on a level without a mesh here: scaled as an area, n_nodes^(2/3)
+        k = len(surface) if own else int(round(len(surface) * (lv.n_nodes / sweep_level.n_nodes) ** (2 / 3)))
+        for c in configs:
+            model = c["onnx"] if own else shaped_graph(c["layers"], lv.n_nodes)
+            pts.append({"scale": lv.scale, "n_tets": lv.n_tets, "n_nodes": lv.n_nodes, "rank": c["rank"],
+                        "net": f"{c['depth']}x{c['width']}", "surrogate_mm": c["surrogate_mm"], "fe_mm": lv.fe_mm,
+                        "e2e_mm": end_to_end(c["surrogate_mm"], lv.fe_mm), "train_s": c["train_s"],
+                        "iterations": c["iterations"], "latency_s": decode_seconds(model, repeat=repeat),
+                        "surface_latency_s": decode_seconds(model, surface if own else np.arange(k), repeat=repeat),
+                        "surface_nodes": k, "surface_nodes_estimated": not own,
+                        "default": own and (c["rank"], c["width"], c["depth"]) == DEFAULT})
+        print(f"  level {lv.scale:g} ({lv.n_tets} tets): timed {len(configs)} graphs", flush=True)
+    for region in SHOWN:
+        idx = [i for i, p in enumerate(pts) if region in p["e2e_mm"]]
+        mask = pareto_mask([pts[i]["latency_s"] for i in idx], [pts[i]["e2e_mm"][region] for i in idx])
+        for i, m in zip(idx, mask):
+            pts[i][f"pareto_{region}"] = bool(m)
+    return pts
 
 
-def decode_latency(model_bytes: bytes, nodes=None, repeat: int = 300):
-    sess = onnx_session(model_bytes)
-    feed = {"guide": np.array([[5.0, 2.0]], dtype=np.float32)}
-    if nodes is not None:
-        feed["nodes"] = np.asarray(nodes, dtype=np.int64)
-    for _ in range(20):
-        sess.run(None, feed)
-    return median_time(lambda: sess.run(None, feed), repeat), sess
+def tiny_sweeps(folder: Path) -> list[Path]:
+    """The tiny scene's nonlinear 1 mm x 2 deg sweep at each MESH_CHECK_SCALES mesh size (resumable; built if missing)."""
+    from fem_offline.convergence import scaled_scene
+    from fem_offline.scene import load_scene
+    from fem_offline.sweep import run_sweep
+
+    base = load_scene(Path("fem_offline/scenes/tiny.toml"), sweep={
+        "displacement_step_mm": 1.0, "displacement_max_mm": 10.0, "angle_min_deg": -10.0, "angle_max_deg": 10.0,
+        "angle_step_deg": 2.0})
+    out = []
+    for scale in MESH_CHECK_SCALES:
+        path = folder / f"{scale:g}"
+        manifest = run_sweep(scaled_scene(base, scale), path, workers=WORKERS)
+        if manifest.n_done != manifest.n_expected:
+            raise SystemExit(f"--mesh-check: {path} has {manifest.n_done} of {manifest.n_expected} snapshots: {manifest.errors}")
+        out.append(path)
+    return out
 
 
-def held_out(sess, inputs, reference) -> tuple[float, float]:
-    pred = np.concatenate([sess.run(None, {"guide": x[None].astype(np.float32)})[0] for x in inputs])
-    return nodal(pred.astype(np.float64), reference)
-
-
-def surrogate_rows(sweep, offgrid_inputs, offgrid_disp) -> list[dict]:
-    s = snapshots_of(sweep)
-    test, inputs, x = training_set(s, PAPER_TEST_CASES)
-    ho_inputs = np.concatenate([s.inputs[test], offgrid_inputs])
-    ho_ref = np.concatenate([s.displacement[test], offgrid_disp])
+def mesh_check(folder: Path) -> list[dict]:
+    """Surrogate errors of the same fits on the tiny scene at each mesh size: how much e_surrogate depends on the mesh."""
     rows = []
-    for rank in (1, 2, 4, 8, 16, 24, 32, 48, 64):
-        t0 = time.perf_counter()
-        fitted = fit_surrogate(inputs, x, FitOptions(rank=rank, width=60, depth=1))
-        t_train = time.perf_counter() - t0
-        pca = fitted.pca
-        d_ho = ho_inputs[:, :1, None]  # the model fits f = u / d (training/export.py)
-        recon = d_ho * pca.decode(pca.encode((ho_ref / d_ho).reshape(len(ho_ref), -1))).reshape(ho_ref.shape)
-        lat, sess = decode_latency(fitted.onnx_bytes())
-        rows.append(row("PCA rank", f"rank {rank}", held_out(sess, ho_inputs, ho_ref), lat,
-                        f"PCA alone {nodal(recon, ho_ref)[0]:.4f} mm; PCA + train {t_train:.1f} s", kind="query",
-                        reconstruction_max_mm=nodal(recon, ho_ref)[0], train_seconds=t_train))
-        print(f"  rank {rank}: held-out {rows[-1]['max_mm']:.4f} mm, decode {lat * 1e3:.3f} ms", flush=True)
-    for width, depth in ((15, 1), (30, 1), (60, 1), (120, 1), (30, 2), (60, 2)):
-        fitted = fit_surrogate(inputs, x, FitOptions(rank=32, width=width, depth=depth))
-        t_train = fitted.info["seconds"]
-        lat, sess = decode_latency(fitted.onnx_bytes())
-        rows.append(row("network (rank 32)", f"{depth}x{width} tanh", held_out(sess, ho_inputs, ho_ref), lat,
-                        f"train {t_train:.1f} s, {fitted.info['iterations']} L-BFGS iterations", kind="query",
-                        train_seconds=t_train))
-        print(f"  {depth}x{width}: held-out {rows[-1]['max_mm']:.4f} mm, train {t_train:.1f} s", flush=True)
-        if (width, depth) == (60, 1):
-            default = fitted
-    for dtype, name in ((np.float32, "float32"), (np.float16, "float16")):
-        model = default.onnx_bytes(dtype)
-        lat, sess = decode_latency(model)
-        rows.append(row("basis precision", f"{name} basis, full mesh", held_out(sess, ho_inputs, ho_ref), lat,
-                        f"model.onnx {len(model) / 1e6:.1f} MB", kind="query"))
-    model = default.onnx_bytes()
-    full = held_out(decode_latency(model)[1], ho_inputs, ho_ref)
-    for region in ("prostate_surface", "markers"):
-        ids = sweep.mesh.node_sets[region]
-        lat, sess = decode_latency(model, ids)
-        pred = np.concatenate([sess.run(None, {"guide": xx[None].astype(np.float32), "nodes": ids})[0] for xx in ho_inputs])
-        rows.append(row("region", f"{region} ({len(ids)} nodes)", nodal(pred.astype(np.float64), ho_ref[:, ids]), lat,
-                        f"full mesh: {full[0]:.4f} mm; error over the region's nodes only", kind="region"))
+    for path in tiny_sweeps(folder):
+        sweep = read_sweep(path)
+        print(f"mesh check: {path} ({len(sweep.mesh.tets)} tets)", flush=True)
+        for c in fit_configs(sweep, None, MESH_CHECK_RANKS, ((60, 1),), MESH_CHECK_HELD_OUT):
+            rows.append({"folder": str(path), "n_tets": len(sweep.mesh.tets), "rank": c["rank"], "surrogate_mm": c["surrogate_mm"]})
     return rows
 
 
-def fe_vs_surrogate(offgrid_files, default_latency: float) -> dict:
-    seconds = []
-    for f in offgrid_files:
-        with np.load(f) as z:
-            seconds.append(float(z["seconds"]))
-    fe = float(np.median(seconds))
-    return {"fe_seconds_median": fe, "fe_seconds_max": max(seconds), "surrogate_seconds": default_latency,
-            "speedup": fe / default_latency, "paper_speedup": 11.1 * 60 / 0.04}
+def ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.3f} ms"
 
 
-def pareto(points: list[tuple[float, float]]) -> list[int]:
-    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
-    front, best = [], np.inf
-    for i in order:
-        if points[i][1] < best:
-            front.append(i)
-            best = points[i][1]
-    return front
+def duration(seconds: float) -> str:
+    return f"{seconds:.0f} s ({seconds / 60:.1f} min)"
 
 
-def write_outputs(rows, versus, out: Path) -> None:
+def figure(pts, levels, build, out: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out.mkdir(parents=True, exist_ok=True)
-    # The front is over answers for the whole mesh; region rows answer a smaller question and are only drawn.
-    query = [r for r in rows if r["kind"] == "query" and r["max_mm"] > 0]
-    regions = [r for r in rows if r["kind"] == "region"]
-    pts = [(r["seconds"], r["max_mm"]) for r in query]
-    front = set(pareto(pts))
-    fig, ax = plt.subplots(figsize=(8, 5.5))
-    groups = sorted({r["group"] for r in query}, key=lambda g: [r["group"] for r in query].index(g))
-    for g, marker in zip(groups, "osD^vP*X"):
-        idx = [i for i, r in enumerate(query) if r["group"] == g]
-        ax.scatter([pts[i][0] for i in idx], [pts[i][1] for i in idx], marker=marker, label=g, s=40)
-    ax.scatter([r["seconds"] for r in regions], [r["max_mm"] for r in regions], marker="x", c="grey", label="region only (not on the front)")
-    for r in regions:
-        ax.annotate(r["setting"], (r["seconds"], r["max_mm"]), fontsize=7, xytext=(4, -10), textcoords="offset points")
-    fr = sorted(front, key=lambda i: pts[i][0])
-    ax.plot([pts[i][0] for i in fr], [pts[i][1] for i in fr], "k--", lw=1, label="Pareto front")
-    for i in fr:
-        ax.annotate(query[i]["setting"], pts[i], fontsize=7, xytext=(4, 4), textcoords="offset points")
-    ax.set(xscale="log", yscale="log", xlabel="time per query (s): FE solve or onnxruntime decode, median",
-           ylabel="max nodal error (mm)", title="What accuracy costs in time (2 cores)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5.5))
+    colours = dict(zip(sorted({p["scale"] for p in pts}, reverse=True), ("tab:red", "tab:orange", "tab:blue", "tab:green")))
+    shapes = dict(zip([f"{d}x{w}" for w, d in NETWORKS], "osD^"))
+    tets = {lv.scale: lv.n_tets for lv in levels}
+    for ax, region in zip(axes[:2], SHOWN):
+        sub = [p for p in pts if region in p["e2e_mm"]]
+        for p in sub:
+            ax.scatter(p["latency_s"] * 1e3, p["e2e_mm"][region], c=colours[p["scale"]], marker=shapes[p["net"]],
+                       s=12 + 2 * p["rank"], alpha=0.75, edgecolors="k" if p[f"pareto_{region}"] else "none")
+        front = sorted((p for p in sub if p[f"pareto_{region}"]), key=lambda p: p["latency_s"])
+        ax.step([p["latency_s"] * 1e3 for p in front], [p["e2e_mm"][region] for p in front], "k--", lw=1, where="post",
+                label="Pareto front")
+        last = None
+        for p in front:  # label the front where it moves on: a new level or 1.3x the last label's latency
+            if last is None or p["scale"] != last["scale"] or p["latency_s"] > 1.3 * last["latency_s"]:
+                ax.annotate(f"r{p['rank']} {p['net']}", (p["latency_s"] * 1e3, p["e2e_mm"][region]), fontsize=7,
+                            xytext=(3, 4), textcoords="offset points")
+                last = p
+        d = next((p for p in sub if p["default"]), None)
+        if d:
+            ax.scatter(d["latency_s"] * 1e3, d["e2e_mm"][region], marker="*", s=220, facecolors="none", edgecolors="k",
+                       label="models/default (rank 40, 1x60)")
+        ax.set(xscale="log", xlabel="online latency: one decode, all nodes (ms, onnxruntime, 1 thread, median)",
+               ylabel=f"end-to-end error at the {region.replace('_', ' ')} (mm, max)",
+               title=f"{region.replace('_', ' ')}: surrogate + FE vs the converged estimate")
+        ax.grid(True, which="both", alpha=0.3)
+    for scale, col in colours.items():
+        axes[0].scatter([], [], c=col, label=f"{tets[scale]:,} tets (sizes x {scale:g})")
+    for net, m in shapes.items():
+        axes[0].scatter([], [], c="grey", marker=m, label=f"network {net}")
+    axes[0].legend(fontsize=7, title="marker size: PCA rank 8..48", title_fontsize=7)
+    axes[1].legend(fontsize=7)
+    ax = axes[2]
+    for p in pts:
+        ax.scatter(build[p["scale"]]["estimate_s"] + p["train_s"], p["e2e_mm"]["markers"], c=colours[p["scale"]],
+                   marker=shapes[p["net"]], s=12 + 2 * p["rank"], alpha=0.75)
+    for scale, b in build.items():
+        if b.get("measured_s") is not None:
+            ax.axvline(b["measured_s"], color=colours[scale], ls=":", lw=1, label=f"measured sweep, {tets[scale]:,} tets")
+    ax.set(xlabel="offline build (s): sweep (estimated) + PCA and training",
+           ylabel="end-to-end error at the markers (mm, max)", title="what a build costs offline (2 workers)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "tradeoff.png", dpi=120)
-    lines = ["# Accuracy vs time", "", "Written by `python scripts/tradeoff.py --sweep runs/default --offgrid runs/default/offgrid`;",
-             "every row was measured in the same run on the same machine (2 cores).", "",
-             "| group | setting | max error (mm) | p99 error (mm) | time | note |", "|---|---|---|---|---|---|"]
+    fig.savefig(out / "tradeoff.png", dpi=110)
+    plt.close(fig)
+
+
+def fmt(x) -> str:
+    return "—" if x is None else f"{x:.4f}"
+
+
+def pareto_lines(pts, region) -> list[str]:
+    front = sorted((p for p in pts if p.get(f"pareto_{region}")), key=lambda p: p["latency_s"])
+    return [f"| {p['n_tets']:,} | {p['rank']} | {p['net']} | {ms(p['latency_s'])} | {p['e2e_mm'][region]:.4f} | "
+            f"{p['surrogate_mm'][region]:.5f} | {p['fe_mm'][region]:.4f} |" for p in front]
+
+
+def level_lines(levels, build, sweep_level) -> list[str]:
+    lines = ["| mesh | nodes | e_FE markers | e_FE prostate surface | e_FE every node | full-push solve (one path) "
+             "| sweep, estimated | sweep, measured |", "|---|---|---|---|---|---|---|---|"]
+    for lv in levels:
+        b = build[lv.scale]
+        own = " (the sweep's)" if lv is sweep_level else ""
+        lines.append(f"| {lv.n_tets:,} tets, sizes x {lv.scale:g}{own} | {lv.n_nodes:,} | {fmt(lv.fe_mm.get('markers'))} | "
+                     f"{fmt(lv.fe_mm.get('prostate_surface'))} | {fmt(lv.fe_mm.get('all_nodes'))} | {lv.path_seconds:.0f} s | "
+                     f"{duration(b['estimate_s'])} | {duration(b['measured_s']) if b['measured_s'] else '—'} |")
+    return lines
+
+
+def point_lines(pts) -> list[str]:
+    lines = ["| mesh (tets) | rank | net | surrogate: markers / surface / every node (mm) | end to end: markers / surface / "
+             "every node (mm) | decode, all nodes | decode, surface (nodes) | PCA + train | L-BFGS iterations | Pareto |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for p in pts:
+        s, e = p["surrogate_mm"], p["e2e_mm"]
+        marks = [r.replace("prostate_", "") for r in SHOWN if p.get(f"pareto_{r}")] + (["default"] if p["default"] else [])
+        est = " est." if p["surface_nodes_estimated"] else ""
+        lines.append(f"| {p['n_tets']:,} | {p['rank']} | {p['net']} | {s['markers']:.5f} / {s['prostate_surface']:.5f} / "
+                     f"{s['all_nodes']:.5f} | {fmt(e.get('markers'))} / {fmt(e.get('prostate_surface'))} / "
+                     f"{fmt(e.get('all_nodes'))} | {ms(p['latency_s'])} | {ms(p['surface_latency_s'])} ({p['surface_nodes']}{est}) | "
+                     f"{p['train_s']:.1f} s | {p['iterations']} | {', '.join(marks)} |")
+    return lines
+
+
+def check_lines(rows) -> list[str]:
+    if not rows:
+        return ["Not run (no --mesh-check)."]
+    lines = ["| tiny mesh | rank (1x60) | surrogate: markers | prostate surface | every node (mm) |", "|---|---|---|---|---|"]
     for r in rows:
-        t = f"{r['seconds'] * 1e3:.3f} ms" if r["seconds"] < 1 else f"{r['seconds']:.2f} s"
-        pf = " **(Pareto)**" if r in [query[i] for i in front] else ""
-        lines.append(f"| {r['group']} | {r['setting']}{pf} | {r['max_mm']:.4f} | {r['p99_mm']:.5f} | {t} | {r['note']} |")
-    lines += ["", f"**FE vs surrogate, one query**: FE nonlinear solve from rest (off-grid cases) median "
-              f"{versus['fe_seconds_median']:.1f} s (max {versus['fe_seconds_max']:.1f} s); decode "
-              f"{versus['surrogate_seconds'] * 1e3:.3f} ms: **{versus['speedup']:,.0f}x** faster. "
-              f"The paper: 11.1 min vs 0.04 s = {versus['paper_speedup']:,.0f}x.", "",
-              "Errors: FE mesh rows against the paper-scale mesh at the prostate's probe points (linear, 10 mm, "
-              "beta = -10/0/10 deg); surrogate rows against the default mesh's FE snapshots (the paper's five "
-              "held-out samples + the off-grid cases), all nodes, float32 ONNX model. Times: FE rows are one "
-              "factorisation + solve (a linear snapshot: two unit solves; AMG-CG at paper scale, where PARDISO's factors do not fit "
-              "in 24 GB), physics rows a whole sweep, surrogate rows one "
-              "onnxruntime call (1 thread). Decode times within about 0.01 ms of each other are equal within "
-              "this machine's noise, so Pareto marks among the rank-32 models mean little.", "", "![tradeoff](tradeoff.png)", ""]
-    (out / "tradeoff.md").write_text("\n".join(lines))
+        s = r["surrogate_mm"]
+        lines.append(f"| {r['n_tets']:,} tets | {r['rank']} | {s['markers']:.5f} | {s['prostate_surface']:.5f} | {s['all_nodes']:.5f} |")
+    return lines
+
+
+def committed_line(model: Path, sweep_level) -> list[str]:
+    """The committed model of the default configuration, if it was fitted on the sweep's mesh: its own surrogate errors."""
+    if not (model / "manifest.json").is_file():
+        return []
+    m = read_manifest(model)
+    if ((m.fit.rank, m.fit.width, m.fit.depth) != DEFAULT or (m.mesh.n_tets, m.mesh.n_nodes) != (sweep_level.n_tets, sweep_level.n_nodes)):
+        return []
+    s = {k: r.surrogate_mm for k, r in m.accuracy.regions.items()}
+    e = end_to_end(s, sweep_level.fe_mm)
+    return [f"The committed `{model}` (the same configuration, trained to {m.network.iterations} L-BFGS iterations "
+            f"when it was built) errs {s['markers']:.5f} / {s['prostate_surface']:.5f} / {s['all_nodes']:.5f} mm "
+            f"as a surrogate: end to end {e['markers']:.3f} / {e['prostate_surface']:.3f} / {e['all_nodes']:.3f} mm "
+            "with the FE errors above. The two differ in where L-BFGS stopped (see \"Every configuration\").", ""]
+
+
+def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
+    d = next(p for p in pts if p["default"])
+    speedup = float(f"{fe_query['median'] / d['latency_s']:.2g}")  # two significant digits: the decode time is noisy
+    lines = [
+        "# Accuracy vs time, end to end", "",
+        f"Written by `{meta['command']}` in {meta['seconds']:.0f} s on this machine (2 cores, shared with a running FE "
+        "study while it ran: the latencies are medians under that load).", "",
+        "Each point is a configuration: a mesh level L of the grid-convergence study "
+        f"([{meta['convergence']}]({Path(meta['convergence']).name})), a PCA rank and a network. Its error is **end "
+        "to end**: the surrogate's error against its own mesh's FE plus that mesh's FE error against the best converged "
+        "estimate (`training/tradeoff.py`), max over the region's points and the cases. Its time is the **online "
+        "latency**: one onnxruntime call of the exported float32 graph (1 thread, batch 1, median). The offline build "
+        "cost is the third panel.", "",
+        "* **FE error of a level** (from the convergence JSON): the finest level's GCI band (Fs 1.25); a coarser "
+        "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate surface "
+        "only as summaries of the two finest levels, so the surface panel has those levels only (the second finest as "
+        "its largest change plus the largest band, an upper bound), and every node the finest only (table).",
+        f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the only "
+        f"840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "
+        f"({meta['n_held_out']} cases). **Assumed**: the same (rank, network) errs as much on "
+        "every level's sweep, so the measured value is added to every level's FE error. The mesh check below tests it "
+        "on the tiny scene.",
+        "* **Latency of a level without a sweep**: the same network exported (`training/export.py`) with a random "
+        "basis of that level's shape; onnxruntime's work depends on the shapes only. The surface subset's node count "
+        f"there is estimated (the sweep's {meta['surface_nodes']} scaled by nodes^(2/3), 'est.').",
+        f"* **Build cost**: the 840-case sweep on {WORKERS} workers solves {meta['n_paths']} paths (β ≥ 0; β < 0 is "
+        "mirrored). Estimated for every level as ceil(paths / workers) × that level's full-push solve time in the "
+        "convergence JSON (mean of its 10 mm cases, solved from rest); the sweep's own level is also measured: its "
+        "per-path solve seconds (manifest) scheduled on the workers. Training (PCA + network) is measured per point.", "",
+        "## The default configuration", "",
+        f"`models/default` (rank 40, 1x60, {sweep_level.n_tets:,} tets): **{d['e2e_mm']['markers']:.3f} mm at the markers, "
+        f"{d['e2e_mm']['prostate_surface']:.3f} mm on the prostate surface, {d['e2e_mm']['all_nodes']:.3f} mm at every "
+        f"node**, end to end; of which the surrogate {d['surrogate_mm']['markers']:.5f} / "
+        f"{d['surrogate_mm']['prostate_surface']:.5f} / {d['surrogate_mm']['all_nodes']:.5f} mm. Decode "
+        f"{ms(d['latency_s'])} (all nodes), {ms(d['surface_latency_s'])} (surface); {d['iterations']} L-BFGS "
+        "iterations in this run.", "", *meta["committed"],
+        "## Mesh levels", "", *level_lines(levels, build, sweep_level), "",
+        f"At the sweep's level the estimate is {build[sweep_level.scale]['estimate_s'] / build[sweep_level.scale]['measured_s']:.2f}x "
+        "the measured sweep: the study's solve times (one path from rest, on a machine shared with other jobs) are a "
+        "rough scale for the others.", "",
+        "## Pareto points", "",
+        "Markers (every level):", "", "| mesh (tets) | rank | net | decode | end to end (mm) | surrogate | FE |",
+        "|---|---|---|---|---|---|---|", *pareto_lines(pts, "markers"), "",
+        "Prostate surface (the two finest levels):", "", "| mesh (tets) | rank | net | decode | end to end (mm) | surrogate | FE |",
+        "|---|---|---|---|---|---|---|", *pareto_lines(pts, "prostate_surface"), "",
+        "Decode times within about 0.01–0.02 ms of each other are equal within this machine's noise, so the order of "
+        "neighbouring Pareto points is not significant.", "",
+        "## Does the surrogate's error depend on the mesh?", "",
+        "The same fits (1x60, ranks below) on the tiny scene's nonlinear sweep (1 mm × 2°, 110 snapshots, held out "
+        f"{', '.join(f'{a:g}/{b:g}' for a, b in MESH_CHECK_HELD_OUT)} mm/°) at two mesh sizes (sizes × "
+        f"{' and × '.join(f'{s:g}' for s in MESH_CHECK_SCALES)}):", "", *check_lines(checks), "",
+        "## FE solved online instead", "",
+        "Solving the FE per query removes the surrogate's share but costs the full-push solve time: "
+        + ", ".join(f"{lv.path_seconds:.0f} s on {lv.n_tets:,} tets (error {fmt(lv.fe_mm.get('markers'))} mm at the markers)"
+                    for lv in levels)
+        + f". The off-grid cases on the sweep's mesh took {fe_query['median']:.0f} s median (max {fe_query['max']:.0f} s) "
+        f"from rest; the default decode {ms(d['latency_s'])}: about {speedup:,.0f}x faster, "
+        "for an end-to-end error larger by the surrogate's share above. The paper: 11.1 min vs 0.04 s.", "",
+        "## Left out of this study", "",
+        "* **The linear model**: it is cut where it turns elements inside out (6.5 mm on this mesh, "
+        "[linear_validity.md](linear_validity.md); `fem_offline/validity.py`), so a linear model answers only 0–6.5 mm, "
+        "not the 0–10 mm envelope of these points, and is not a point on this front.",
+        "* **Finer meshes than the study's finest** (the earlier linear rows up to paper scale): their error against "
+        "the converged estimate is not known until the convergence study has them; FE solves at those sizes are not "
+        "rerun here.",
+        "* **float16 basis and node subsets other than the surface**: not configurations of the end-to-end error.", "",
+        "## Every configuration", "",
+        "One fit per configuration (seed 0, up to 1000 L-BFGS iterations, as `training fit`). A run that stops after "
+        "fewer than about 100 iterations met L-BFGS's change tolerance early (`training/network.py` takes that as "
+        "converged); its error can be several times that of a run that went on, and which runs stop depends on "
+        "round-off (the thread count changes it). So neighbouring networks are ranked partly by the optimiser's luck; "
+        "the surrogate's share of the end-to-end error stays small either way.", "", *point_lines(pts), "", "![tradeoff](tradeoff.png)", ""]
+    return "\n".join(lines)
+
+
+def fe_query_seconds(offgrid: Path) -> dict:
+    seconds = []
+    for f in sorted(offgrid.glob("offgrid_*.npz")):
+        with np.load(f) as z:
+            seconds.append(float(z["seconds"]))
+    return {"median": float(np.median(seconds)), "max": max(seconds)}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sweep", type=Path, default=Path("runs/default"))
-    ap.add_argument("--offgrid", type=Path, default=Path("runs/default/offgrid"))
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+    ap.add_argument("--sweep", type=Path, default=Path("runs/default_conv"), help="the 840-case sweep on one study level")
+    ap.add_argument("--offgrid", type=Path, default=Path("runs/default_conv/offgrid"))
+    ap.add_argument("--convergence", type=Path, default=Path("docs/convergence.json"),
+                    help="scripts/convergence_study.py's JSON (e.g. docs/convergence_contact.json)")
+    ap.add_argument("--mesh-check", type=Path, help="folder of the tiny scene's sweeps for the mesh check (built if missing)")
+    ap.add_argument("--model", type=Path, default=Path("models/default"),
+                    help="the committed model of the default configuration, quoted beside this run's fit")
+    ap.add_argument("--repeat", type=int, default=200, help="timed onnxruntime calls per graph (median)")
     ap.add_argument("--out", type=Path, default=Path("docs"))
-    ap.add_argument("--skip-fe-meshes", action="store_true", help="leave out the mesh-fidelity rows (the slowest part)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     sweep = read_sweep(args.sweep)
-    files = sorted(p for p in args.offgrid.glob("offgrid_*.npz"))
-    og_inputs, og_disp = read_offgrid(args.offgrid, len(sweep.mesh.nodes))
-    print("surrogate rows ...", flush=True)
-    rows = surrogate_rows(sweep, og_inputs, og_disp)
-    print("physics rows ...", flush=True)
-    rows = physics_rows(sweep, args.scene) + rows
-    if not args.skip_fe_meshes:
-        print("FE mesh rows ...", flush=True)
-        rows = fe_mesh_rows(args.scene) + rows
-    default = next(r for r in rows if r["setting"] == "1x60 tanh")
-    versus = fe_vs_surrogate(files, default["seconds"])
-    write_outputs(rows, versus, args.out)
+    levels = level_errors(json.loads(args.convergence.read_text()))
+    own = (len(sweep.mesh.tets), len(sweep.mesh.nodes))
+    sweep_level = next((lv for lv in levels if (lv.n_tets, lv.n_nodes) == own), None)
+    if sweep_level is None:
+        raise SystemExit(f"--convergence: no level of {args.convergence} has the sweep's {own[0]} tets and {own[1]} nodes")
+    checks = mesh_check(args.mesh_check) if args.mesh_check else []
+    print("fits on the sweep ...", flush=True)
+    configs = fit_configs(sweep, args.offgrid, RANKS, NETWORKS)
+    print("decode latency ...", flush=True)
+    pts = points(configs, levels, sweep_level, sweep, args.repeat)
+    paths = solved_path_seconds(sweep.manifest)
+    build = {lv.scale: {"estimate_s": sweep_estimate(lv.path_seconds, len(paths), WORKERS),
+                        "measured_s": makespan(paths, WORKERS) if lv is sweep_level else None} for lv in levels}
+    args.out.mkdir(parents=True, exist_ok=True)
+    figure(pts, levels, build, args.out)
+    meta = {"command": shlex.join(["python", "scripts/tradeoff.py", *sys.argv[1:]]), "convergence": str(args.convergence),
+            "sweep": str(args.sweep), "surface_nodes": len(sweep.mesh.node_sets["prostate_surface"]), "n_paths": len(paths), "n_held_out": configs[0]["n_held_out"],
+            "n_offgrid": configs[0]["n_held_out"] - len(PAPER_TEST_CASES),
+            "committed": committed_line(args.model, sweep_level), "seconds": time.perf_counter() - t0}
+    (args.out / "tradeoff.md").write_text(markdown(pts, levels, sweep_level, build, checks, fe_query_seconds(args.offgrid), meta))
+    d = next(p for p in pts if p["default"])
+    print(f"default (rank 40, 1x60, {d['n_tets']} tets): end to end {d['e2e_mm']['markers']:.4f} mm at the markers, "
+          f"{d['e2e_mm']['prostate_surface']:.4f} mm at the surface; decode {ms(d['latency_s'])}")
+    for region in SHOWN:
+        front = sorted((p for p in pts if p.get(f"pareto_{region}")), key=lambda p: p["latency_s"])
+        print(f"Pareto ({region}): " + "; ".join(f"{p['n_tets']} tets r{p['rank']} {p['net']} {ms(p['latency_s'])} "
+                                                 f"{p['e2e_mm'][region]:.4f} mm" for p in front))
     print(f"wrote {args.out / 'tradeoff.md'} and {args.out / 'tradeoff.png'} in {time.perf_counter() - t0:.0f} s")
     return 0
 

@@ -28,6 +28,7 @@ from .export import build_graph, folded_layers, reference_decode
 from .metrics import ANGLE_FLOOR_MM, case_errors, summarise
 from .pca import Pca, fit_pca
 from .snapshots import Snapshots, read_offgrid, read_sweep, valid_part
+from .tradeoff import gci_bands
 
 log = logging.getLogger(__name__)
 
@@ -121,12 +122,7 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
         sizes = " and ".join(f"{lv['n_tets']} tets / {lv['n_nodes']} nodes" for lv in study["levels"][-2:])
         raise ValueError(f"--fe-error: the sweep's mesh ({len(mesh.tets)} tets, {len(mesh.nodes)} nodes) is neither of "
                          f"{path}'s two finest levels ({sizes}): not a mesh of that study")
-    suffix = "" if which[0] == "fine" else "_medium"
-    rows = study["cases"].values()
-    bands = {"markers": max(max(r[f"gci_vector{suffix}_mm"] for r in row["markers"]) for row in rows),
-             "prostate_surface": max(max(row[f"surface_{z}"][f"gci{suffix}_mm"]["max"] for z in ("near_tip", "rest"))
-                                     for row in rows),
-             "all_nodes": max(row["all_nodes"][f"gci{suffix}_mm"]["max"] for row in rows)}
+    bands = gci_bands(study, which[0])
     levels = ", ".join(f"{lv['n_tets']:,}" for lv in study["levels"])
     text = (f"FE discretisation: grid convergence index (Fs 1.25) of this mesh, the study's {which[0]} level, against "
             f"the Richardson estimate from 3 meshes ({levels} tets, size ratio {study['ratio']:.2f}), max over the "

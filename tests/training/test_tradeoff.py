@@ -1,0 +1,90 @@
+"""End-to-end error of a configuration, its Pareto front and build-cost arithmetic, on hand-made inputs."""
+
+import numpy as np
+import pytest
+
+from contracts.model import onnx_session
+from training.tradeoff import (end_to_end, gci_bands, level_errors, makespan, pareto_mask, shaped_graph,
+                               sweep_estimate)
+
+CASES = ("10 mm, 0 deg", "5 mm, 5 deg")
+
+
+def _level(scale, n_tets, offset, seconds):
+    """Two markers per case: marker i of case c at (offset, i, c) mm."""
+    return {"scale": scale, "n_tets": n_tets, "n_nodes": 2 * n_tets,
+            "cases": {case: {"seconds": s, "markers": [[offset, 0.0, c], [offset, 1.0, c]]}
+                      for c, (case, s) in enumerate(zip(CASES, seconds))}}
+
+
+def _surface(change, band):
+    return {"gci_mm": {"max": band, "p95": band / 2, "mean": band / 4}, "change_fine_medium_mm": {"max": change}}
+
+
+def study():
+    """Four levels, the three finest analysed (like a study resumed with a finer level)."""
+    levels = [_level(2.0, 100, 0.9, (10.0, 4.0)), _level(1.69, 200, 0.5, (20.0, 8.0)),
+              _level(1.3, 400, 0.2, (40.0, 16.0)), _level(1.0, 800, 0.0, (60.0, 40.0))]
+    cases = {case: {"markers": [{"gci_vector_mm": 0.01 * (c + 1)}, {"gci_vector_mm": 0.05}],
+                    "surface_near_tip": _surface(1.0 + c, 0.7), "surface_rest": _surface(0.3, 0.2 + c),
+                    "all_nodes": {"gci_mm": {"max": 2.0 + c}}} for c, case in enumerate(CASES)}
+    return {"levels": levels, "analysis": {"ratio": 1.3, "levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")}
+                                                                    for lv in levels[1:]], "cases": cases}}
+
+
+def test_finest_level_is_its_band():
+    fine = level_errors(study())[-1]
+    assert fine.fe_mm == pytest.approx({"markers": 0.05, "prostate_surface": 1.2, "all_nodes": 3.0})
+    assert fine.fe_mm == pytest.approx(gci_bands(study()["analysis"]))
+
+
+def test_coarser_level_is_distance_plus_the_finest_band():
+    """Markers sit 0.5 mm (x) from the finest's on level 1.69: 0.5 + the largest band 0.05."""
+    errs = level_errors(study())
+    assert errs[1].fe_mm["markers"] == pytest.approx(0.55)
+    assert errs[0].fe_mm["markers"] == pytest.approx(0.95)
+    assert errs[2].fe_mm["markers"] == pytest.approx(0.25)
+
+
+def test_surface_only_where_the_study_stores_it():
+    """Surface: second finest = change + band (case 1 near the tip: 2.0 + 0.7; at the rest 0.3 + 1.2); every node: finest only."""
+    errs = level_errors(study())
+    assert [sorted(e.fe_mm) for e in errs] == [["markers"], ["markers"], ["markers", "prostate_surface"],
+                                               ["all_nodes", "markers", "prostate_surface"]]
+    assert errs[2].fe_mm["prostate_surface"] == pytest.approx(2.7)
+
+
+def test_path_seconds_is_the_full_push_mean():
+    assert [e.path_seconds for e in level_errors(study())] == [10.0, 20.0, 40.0, 60.0]
+
+
+def test_end_to_end_at_least_each_part_and_only_where_both_are_known():
+    surrogate = {"markers": 0.003, "prostate_surface": 0.02, "all_nodes": 0.04}
+    for lv in level_errors(study()):
+        e2e = end_to_end(surrogate, lv.fe_mm)
+        assert set(e2e) == set(lv.fe_mm)
+        for region, value in e2e.items():
+            assert value >= surrogate[region] and value >= lv.fe_mm[region]
+            assert value == pytest.approx(surrogate[region] + lv.fe_mm[region])
+
+
+def test_pareto_marks_exactly_the_undominated():
+    cost = [1.0, 2.0, 3.0, 4.0, 2.0, 5.0, 4.0]
+    error = [5.0, 3.0, 4.0, 1.0, 3.0, 1.0, 2.0]
+    # (3, 4) is beaten by (2, 3); (5, 1) and (4, 2) by (4, 1); the two equal (2, 3) points do not beat each other
+    assert pareto_mask(cost, error).tolist() == [True, True, False, True, True, False, False]
+
+
+def test_makespan_and_sweep_estimate():
+    assert makespan([3.0, 3.0, 3.0], 2) == 6.0
+    assert makespan([5.0, 1.0, 1.0, 1.0], 2) == 5.0
+    assert sweep_estimate(10.0, 11, 2) == 60.0  # 11 equal paths on 2 workers: 6 rounds
+
+
+def test_shaped_graph_decodes_the_level_shape():
+    rng = np.random.default_rng(1)
+    layers = [(rng.standard_normal((2, 7)), rng.standard_normal(7)), (rng.standard_normal((7, 5)), rng.standard_normal(5))]
+    sess = onnx_session(shaped_graph(layers, 123))
+    guide = np.array([[3.0, 1.0]], dtype=np.float32)
+    assert sess.run(None, {"guide": guide})[0].shape == (1, 123, 3)
+    assert sess.run(None, {"guide": guide, "nodes": np.arange(10, dtype=np.int64)})[0].shape == (1, 10, 3)

@@ -1,0 +1,163 @@
+"""End-to-end error, online latency and build cost of a (mesh level, PCA rank, network) configuration.
+
+The error a user sees is the model's answer against the converged FE answer, per region (max over
+the region's points and the cases):
+
+    e2e(L, r, w) = e_surrogate(r, w) + e_FE(L)
+
+e_surrogate(r, w): the float32 ONNX model against the FE of the mesh it was fitted on, held-out cases.
+e_FE(L): the FE on mesh level L against the best converged estimate of a grid-convergence study
+(scripts/convergence_study.py's JSON, fem_offline/convergence.py), at the study's probe points:
+  the finest level     its GCI band, the best estimate's own uncertainty
+  a coarser level      |u_L - u_finest| + the finest's band, at each point and case, then the max
+By the triangle inequality each sum bounds the distance to the converged answer wherever the band
+bounds the finest level's own error. The JSON keeps every level's displacement at the markers (and
+three interior points), but the prostate surface and the whole mesh only as summaries of the three
+finest levels: the surface's largest change between the two finest levels and the finest band, the
+whole mesh's finest band only. So e_FE is known
+  markers            on every level (pointwise sum)
+  prostate_surface   on the two finest levels (the second finest: largest change + largest band, an
+                     upper bound of the pointwise sum, as the two maxima may sit at different points)
+  all_nodes          on the finest level only
+and `level_errors` leaves a region out of a level's `fe_mm` where the JSON cannot give it.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from contracts.model import onnx_session
+
+from .export import build_graph
+from .pca import Pca
+
+_CASE = re.compile(r"^\s*([-+0-9.eE]+) mm, ([-+0-9.eE]+) deg\s*$")  # run_study's case keys, "10 mm, 0 deg"
+
+
+@dataclass(frozen=True)
+class LevelFe:
+    """One mesh level of a convergence study: its size, its FE error per region (mm), its solve time."""
+
+    scale: float
+    n_tets: int
+    n_nodes: int
+    fe_mm: dict[str, float]  # region -> e_FE; a region the study cannot give for this level is absent
+    path_seconds: float  # mean solve time from rest of the full-push cases (the largest displacement)
+
+
+def gci_bands(analysis: dict, level: str = "fine") -> dict[str, float]:
+    """The finest (or, level="medium", the second-finest) level's GCI band (mm) per region, max over
+    the cases of `analyse`'s result."""
+    sfx = "" if level == "fine" else "_medium"
+    rows = analysis["cases"].values()
+    return {"markers": max(max(r[f"gci_vector{sfx}_mm"] for r in row["markers"]) for row in rows),
+            "prostate_surface": max(row[f"surface_{z}"][f"gci{sfx}_mm"]["max"] for row in rows for z in ("near_tip", "rest")),
+            "all_nodes": max(row["all_nodes"][f"gci{sfx}_mm"]["max"] for row in rows)}
+
+
+def _full_push_seconds(level: dict) -> float:
+    """Mean solve time of the cases at the level's largest displacement (each one a whole load path)."""
+    push = {case: float(_CASE.match(case).group(1)) for case in level["cases"]}
+    d_max = max(push.values())
+    return float(np.mean([level["cases"][c]["seconds"] for c, d in push.items() if d == d_max]))
+
+
+def _marker_error(level: dict, finest: dict, analysis: dict) -> float:
+    """max over cases and markers of |u_L - u_finest| + the finest's vector band at that marker."""
+    worst = 0.0
+    for case, row in analysis["cases"].items():
+        band = np.array([r["gci_vector_mm"] for r in row["markers"]])  # (8,)
+        gap = np.linalg.norm(np.asarray(level["cases"][case]["markers"]) - np.asarray(finest["cases"][case]["markers"]), axis=1)
+        worst = max(worst, float((gap + band).max()))
+    return worst
+
+
+def _surface_medium_error(analysis: dict) -> float:
+    """Second-finest level at the prostate surface: largest change to the finest + largest band, per zone and case."""
+    return max(row[f"surface_{z}"]["change_fine_medium_mm"]["max"] + row[f"surface_{z}"]["gci_mm"]["max"]
+               for row in analysis["cases"].values() for z in ("near_tip", "rest"))
+
+
+def level_errors(study: dict) -> list[LevelFe]:
+    """e_FE per region for every level of a convergence study's JSON (coarsest first)."""
+    analysis = study["analysis"]
+    key = [(lv["n_tets"], lv["n_nodes"]) for lv in analysis["levels"]]
+    finest = next(lv for lv in study["levels"] if (lv["n_tets"], lv["n_nodes"]) == key[-1])
+    bands = gci_bands(analysis)
+    out = []
+    for lv in study["levels"]:
+        this = (lv["n_tets"], lv["n_nodes"])
+        if this == key[-1]:
+            fe = dict(bands)
+        else:
+            fe = {"markers": _marker_error(lv, finest, analysis)}
+            if this == key[-2]:
+                fe["prostate_surface"] = _surface_medium_error(analysis)
+        out.append(LevelFe(float(lv["scale"]), int(lv["n_tets"]), int(lv["n_nodes"]), fe, _full_push_seconds(lv)))
+    return out
+
+
+def end_to_end(surrogate_mm: dict[str, float], fe_mm: dict[str, float]) -> dict[str, float]:
+    """e_surrogate + e_FE per region, for the regions both know."""
+    return {k: surrogate_mm[k] + fe_mm[k] for k in surrogate_mm if k in fe_mm}
+
+
+def pareto_mask(cost, error) -> np.ndarray:
+    """True where no other point is at most as costly and at most as wrong, and better in one of the two."""
+    c, e = np.asarray(cost, dtype=float), np.asarray(error, dtype=float)
+    dominated = [bool(np.any((c <= ci) & (e <= ei) & ((c < ci) | (e < ei)))) for ci, ei in zip(c, e)]
+    return ~np.array(dominated, dtype=bool)
+
+
+def makespan(path_seconds, workers: int) -> float:
+    """Wall time of independent paths on `workers` processes, each taking the next path when free (s)."""
+    free = [0.0] * workers
+    for t in path_seconds:
+        i = int(np.argmin(free))
+        free[i] += t
+    return max(free)
+
+
+def solved_path_seconds(manifest) -> list[float]:
+    """Solve seconds of each path the sweep solved (mirrored snapshots cost nothing), in angle order."""
+    per_angle: dict[float, float] = {}
+    for s in manifest.snapshots:
+        if s.mirrored_from is None:
+            per_angle[s.angle_deg] = per_angle.get(s.angle_deg, 0.0) + s.seconds
+    return [per_angle[a] for a in sorted(per_angle)]
+
+
+def sweep_estimate(path_seconds: float, n_paths: int, workers: int) -> float:
+    """Wall time of a sweep of `n_paths` equal paths of `path_seconds` each on `workers` processes (s)."""
+    return math.ceil(n_paths / workers) * path_seconds
+
+
+def shaped_graph(layers, n_nodes: int, *, seed: int = 0) -> bytes:
+    """The exported graph of a network with a random basis for `n_nodes` nodes: the decode costs what a
+    fitted model on that mesh costs, since onnxruntime's work depends on the shapes only."""
+    rank = layers[-1][0].shape[1]
+    rng = np.random.default_rng(seed)
+    pca = Pca(mean=rng.standard_normal(3 * n_nodes), basis=rng.standard_normal((rank, 3 * n_nodes)),
+              singular_values=np.ones(rank))
+    return build_graph(layers, pca).SerializeToString()
+
+
+def decode_seconds(model: bytes, nodes=None, *, repeat: int = 200, warmup: int = 20) -> float:
+    """Median wall time of one onnxruntime call (1 thread, batch 1), all nodes or the `nodes` subset (s)."""
+    sess = onnx_session(model, threads=1)
+    feed = {"guide": np.array([[5.0, 2.0]], dtype=np.float32)}
+    if nodes is not None:
+        feed["nodes"] = np.asarray(nodes, dtype=np.int64)
+    for _ in range(warmup):
+        sess.run(None, feed)
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        sess.run(None, feed)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
