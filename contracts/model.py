@@ -137,6 +137,7 @@ class NetworkInfo(_Frozen):
     seconds: float
     seed: int
     n_train: int
+    restarts: int = 0  # L-BFGS restarts after early stops (training/network.py); absent before them
     output: str  # how the graph forms the displacement from the network's output
 
 
