@@ -107,7 +107,7 @@ def markdown(s: dict) -> str:
         f"({len(s['displacements_mm'])} displacements every {step:g} mm × {len(s['angles_deg'])} angles "
         f"{s['angles_deg'][0]:g}..{s['angles_deg'][-1]:g}°). Command: `{s['command']}`.",
         "",
-        f"**The linear (small-strain) model stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
+        f"**The linear (small-strain) model with the glued guide patch (the superposable one; with the tip in contact the linear model is load-stepped, fem_offline/contact.py) stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
         f"up to {lin['valid_up_to_mm']:g} mm of guide push.** Its first element turns inside out at "
         f"{lin['first_inversion_mm']:g} mm (bisection on det F's cubic in d); at {d_max:g} mm min det F is "
         f"{lin['min_det_f_at_max']:g} with {lin['n_inverted_tets_at_max'][0]}–{lin['n_inverted_tets_at_max'][1]} tets "

@@ -30,7 +30,8 @@ def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
         "",
         "Errors of the exported float32 ONNX model against the FE solution on this model's own mesh, over all "
         "nodes: the surrogate's error alone. They leave out the FE discretisation error of that mesh (the distance "
-        "to the converged physics), which this manifest does not record. "
+        "to the converged physics)" + (", which this manifest does not record. " if _no_fe_band(manifest) else
+                                        "; \"End to end\" below adds it. ") +
         f"e_NN: max nodal error; α: max angle between displacement vectors over nodes moving more than "
         f"{m.angle_floor_mm} mm; e_r: eq. 2, max component error / max component displacement.",
         "",
@@ -73,3 +74,9 @@ def _accuracy_lines(manifest: ModelManifest) -> list[str]:
     for name, r in acc.regions.items():
         lines.append(f"| {name} | {r.surrogate_mm:.4f} | {_mm(r.fe_discretisation_mm)} | {_mm(r.end_to_end_mm)} |")
     return lines + [""]
+
+
+def _no_fe_band(manifest) -> bool:
+    """True when the model states no FE discretisation error (fitted without --fe-error)."""
+    acc = manifest.accuracy
+    return acc is None or all(r.fe_discretisation_mm is None for r in acc.regions.values())

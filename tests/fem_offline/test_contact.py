@@ -33,10 +33,10 @@ def contact_problem(tiny_scene, tiny_mesh):
 
 @pytest.fixture(scope="module")
 def contact_path(contact_problem):
-    """beta = 5 deg, 1, 2, 3 mm in 1 mm steps."""
+    """beta = 5 deg, 1 and 2 mm in 1 mm steps."""
     p = replace(contact_problem, scene=contact_problem.scene.model_copy(
         update={"solver": contact_problem.scene.solver.model_copy(update={"max_step_mm": 1.0})}))
-    return p, list(solve_path(p, [1.0, 2.0, 3.0], 5.0, with_state=True))
+    return p, list(solve_path(p, [1.0, 2.0], 5.0, with_state=True))
 
 
 def test_no_glued_patch_and_the_tip_touches_the_wall_at_rest(contact_problem):
@@ -127,8 +127,8 @@ def test_path_converges_without_penetration_or_inversion(contact_path):
 
 def test_mirror_symmetry_with_contact(contact_problem):
     """u(-beta) = S u(beta) on the mirror-symmetric phantom, to the solver's tolerance."""
-    plus, _ = solve_case(contact_problem, 1.0, 8.0, step_mm=1.0)
-    minus, _ = solve_case(contact_problem, 1.0, -8.0, step_mm=1.0)
+    plus, _ = solve_case(contact_problem, 0.5, 8.0, step_mm=0.5)
+    minus, _ = solve_case(contact_problem, 0.5, -8.0, step_mm=0.5)
     image = mirror_map(contact_problem.mesh)
     np.testing.assert_allclose(minus, reflect(plus, image), rtol=0, atol=1e-4 * np.abs(plus).max())
 
