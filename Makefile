@@ -78,7 +78,7 @@ bench-service: $(STAMP)
 # Accuracy vs time on the end-to-end error (docs/tradeoff.*): $(RUNS) must be a sweep on one level of the
 # convergence study ($(CONVERGENCE)), e.g. RUNS=runs/default_conv; the tiny-mesh check builds its two sweeps once.
 # The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
-CONVERGENCE ?= docs/convergence.json
+CONVERGENCE ?= docs/convergence_contact.json
 tradeoff: $(STAMP)
 	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
 	    --mesh-check runs/tiny_mesh_check

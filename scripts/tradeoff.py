@@ -45,9 +45,9 @@ from training.snapshots import read_offgrid, read_sweep, valid_part  # noqa: E40
 from training.tradeoff import (decode_seconds, end_to_end, level_errors, makespan, pareto_mask,  # noqa: E402
                                shaped_graph, solved_path_seconds, sweep_estimate)
 
-RANKS = (8, 16, 24, 32, 40, 48)
+RANKS = (8, 16, 24, 32, 40, 48, 64)
 NETWORKS = ((30, 1), (60, 1), (120, 1), (60, 2))  # (width, depth)
-DEFAULT = (40, 60, 1)  # models/default: rank, width, depth
+DEFAULT = (64, 120, 1)  # models/default: rank, width, depth
 WORKERS = 2  # the sweep's default process count, as the measured sweep ran
 MESH_CHECK_SCALES = (1.69, 1.0)
 MESH_CHECK_RANKS = (8, 16, 24)
@@ -177,7 +177,7 @@ def figure(pts, levels, build, out: Path) -> None:
         d = next((p for p in sub if p["default"]), None)
         if d:
             ax.scatter(d["latency_s"] * 1e3, d["e2e_mm"][region], marker="*", s=220, facecolors="none", edgecolors="k",
-                       label="models/default (rank 40, 1x60)")
+                       label=f"models/default (rank {DEFAULT[0]}, 1x{DEFAULT[1]})")
         ax.set(xscale="log", xlabel="online latency: one decode, all nodes (ms, onnxruntime, 1 thread, median)",
                ylabel=f"end-to-end error at the {region.replace('_', ' ')} (mm, max)",
                title=f"{region.replace('_', ' ')}: surrogate + FE vs the converged estimate")
@@ -271,8 +271,8 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
     speedup = float(f"{fe_query['median'] / d['latency_s']:.2g}")  # two significant digits: the decode time is noisy
     lines = [
         "# Accuracy vs time, end to end", "",
-        f"Written by `{meta['command']}` in {meta['seconds']:.0f} s on this machine (2 cores, shared with a running FE "
-        "study while it ran: the latencies are medians under that load).", "",
+        f"Written by `{meta['command']}` in {meta['seconds']:.0f} s on this machine (2 cores; latencies are medians, "
+        "and this machine is shared, so differences of about 0.01 ms are noise).", "",
         "Each point is a configuration: a mesh level L of the grid-convergence study "
         f"([{meta['convergence']}]({Path(meta['convergence']).name})), a PCA rank and a network. Its error is **end "
         "to end**: the surrogate's error against its own mesh's FE plus that mesh's FE error against the best converged "
@@ -296,7 +296,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "convergence JSON (mean of its 10 mm cases, solved from rest); the sweep's own level is also measured: its "
         "per-path solve seconds (manifest) scheduled on the workers. Training (PCA + network) is measured per point.", "",
         "## The default configuration", "",
-        f"`models/default` (rank 40, 1x60, {sweep_level.n_tets:,} tets): **{d['e2e_mm']['markers']:.3f} mm at the markers, "
+        f"`models/default` (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {sweep_level.n_tets:,} tets): **{d['e2e_mm']['markers']:.3f} mm at the markers, "
         f"{d['e2e_mm']['prostate_surface']:.3f} mm on the prostate surface, {d['e2e_mm']['all_nodes']:.3f} mm at every "
         f"node**, end to end; of which the surrogate {d['surrogate_mm']['markers']:.5f} / "
         f"{d['surrogate_mm']['prostate_surface']:.5f} / {d['surrogate_mm']['all_nodes']:.5f} mm. Decode "
@@ -304,8 +304,8 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "iterations in this run.", "", *meta["committed"],
         "## Mesh levels", "", *level_lines(levels, build, sweep_level), "",
         f"At the sweep's level the estimate is {build[sweep_level.scale]['estimate_s'] / build[sweep_level.scale]['measured_s']:.2f}x "
-        "the measured sweep: the study's solve times (one path from rest, on a machine shared with other jobs) are a "
-        "rough scale for the others.", "",
+        "the measured sweep: the study's solve times (one path from rest, at the study's load step, which may be "
+        "larger than the sweep's 0.25 mm, on a machine shared with other jobs) are a rough scale for the others.", "",
         "## Pareto points", "",
         "Markers (every level):", "", "| mesh (tets) | rank | net | decode | end to end (mm) | surrogate | FE |",
         "|---|---|---|---|---|---|---|", *pareto_lines(pts, "markers"), "",
@@ -384,7 +384,7 @@ def main() -> int:
             "committed": committed_line(args.model, sweep_level), "seconds": time.perf_counter() - t0}
     (args.out / "tradeoff.md").write_text(markdown(pts, levels, sweep_level, build, checks, fe_query_seconds(args.offgrid), meta))
     d = next(p for p in pts if p["default"])
-    print(f"default (rank 40, 1x60, {d['n_tets']} tets): end to end {d['e2e_mm']['markers']:.4f} mm at the markers, "
+    print(f"default (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {d['n_tets']} tets): end to end {d['e2e_mm']['markers']:.4f} mm at the markers, "
           f"{d['e2e_mm']['prostate_surface']:.4f} mm at the surface; decode {ms(d['latency_s'])}")
     for region in SHOWN:
         front = sorted((p for p in pts if p.get(f"pareto_{region}")), key=lambda p: p["latency_s"])
