@@ -272,17 +272,17 @@ class Scene(_Strict):
         data = self.model_dump(mode="json")
         # Fields added later are left out while at their default, so the scenes, sweeps and models
         # made before them keep their hashes.
-        for section, key, default in _LATER_FIELDS:
+        for section, key in _LATER_FIELDS:
             parent = data if section is None else data[section]
-            if parent.get(key) == default:
+            model = type(self) if section is None else type(getattr(self, section))
+            if parent.get(key) == model.model_fields[key].default:
                 parent.pop(key, None)
         blob = json.dumps(data, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()
 
 
-_LATER_FIELDS = ((None, "label_map", None), ("guide", "snap_mm", None), ("guide", "tip_radius_mm", 6.0),
-                 ("guide", "contact_stiffness_kpa_mm", 3e4), ("guide", "contact_tol_mm", 0.005),
-                 ("effects", "guide_contact", False))
+_LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"), ("guide", "tip_radius_mm"),
+                 ("guide", "contact_stiffness_kpa_mm"), ("guide", "contact_tol_mm"), ("effects", "guide_contact"))
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")
 
 

@@ -115,11 +115,10 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
     import json
 
     study = json.loads(Path(path).read_text())["analysis"]
-    which = [lv for lv in ("fine", "medium")
-             if (study["levels"][-1 if lv == "fine" else -2]["n_tets"], study["levels"][-1 if lv == "fine" else -2]["n_nodes"])
-             == (len(mesh.tets), len(mesh.nodes))]
+    finest = {"fine": study["levels"][-1], "medium": study["levels"][-2]}
+    which = [k for k, lv in finest.items() if (lv["n_tets"], lv["n_nodes"]) == (len(mesh.tets), len(mesh.nodes))]
     if not which:
-        sizes = " and ".join(f"{lv['n_tets']} tets / {lv['n_nodes']} nodes" for lv in study["levels"][-2:])
+        sizes = " and ".join(f"{lv['n_tets']} tets / {lv['n_nodes']} nodes" for lv in finest.values())
         raise ValueError(f"--fe-error: the sweep's mesh ({len(mesh.tets)} tets, {len(mesh.nodes)} nodes) is neither of "
                          f"{path}'s two finest levels ({sizes}): not a mesh of that study")
     bands = gci_bands(study, which[0])
