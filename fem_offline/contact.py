@@ -159,7 +159,7 @@ def evaluate(s: Surface, u: np.ndarray, load: Load) -> State:
 def stiffness(s: Surface, st: State, curvature: bool = False) -> np.ndarray:
     """The contact tangent per face (f, 10, 3, 10, 3); with `curvature`, the exact Hessian of Pi_c.
 
-    Newton leaves the curvature term out (see the module docstring)."""
+    Newton adds the curvature term only near convergence (see the module docstring)."""
     on = st.pressure > 0
     nn = st.normal[..., :, None] * st.normal[..., None, :]  # (f, q, 3, 3)
     A = s.stiffness * on[..., None, None] * nn  # (f, q, 3, 3)
@@ -174,9 +174,9 @@ def scatter(s: Surface, force: np.ndarray, n_dofs: int) -> np.ndarray:
     return np.bincount(s.edofs.ravel(), weights=force.ravel(), minlength=n_dofs)
 
 
-def add_stiffness(s: Surface, Ke: np.ndarray, st: State) -> None:
-    """Ke (n_active, 10, 3, 10, 3) += the contact Hessian of each face's tet, in place."""
-    np.add.at(Ke, s.tet, stiffness(s, st))
+def add_stiffness(s: Surface, Ke: np.ndarray, st: State, curvature: bool = False) -> None:
+    """Ke (n_active, 10, 3, 10, 3) += the contact tangent of each face's tet, in place."""
+    np.add.at(Ke, s.tet, stiffness(s, st, curvature))
 
 
 def resultant(s: Surface, st: State) -> np.ndarray:

@@ -6,7 +6,7 @@ through up to three converged states, and a step that fails is halved, up to sol
 times. With gravity on, the path starts from the gravity-loaded state (loaded in 4 steps).
 With the guide in contact (contact.py), each step ends with augmented-Lagrangian updates of the
 contact multipliers, a Newton solve after each, until the wall's deepest penetration into the tip
-is below guide.contact_tol_mm; the multipliers carry to the next step.
+is below guide.contact_tol_mm; the next step starts from that equilibrium's pressures.
 """
 
 from __future__ import annotations
@@ -71,11 +71,21 @@ def settle_contact(problem: Problem, u: np.ndarray, g: np.ndarray, cache: Factor
                            f"(guide.contact_tol_mm = {surface.tol_mm:g})", stats)
 
 
+def _next_multipliers(problem: Problem, state: PathState, angle_deg: float) -> np.ndarray | None:
+    """Where the next step's multipliers start: the pressures of the last equilibrium, an Uzawa update
+    merged into the step (the penetration left is then the pressure's growth over one step / k, so a
+    step seldom needs an update of its own)."""
+    if problem.contact is None or state.multipliers is None:
+        return state.multipliers
+    last = problem.at_guide(state.d_mm, angle_deg, state.multipliers).contact_load
+    return ct.evaluate(problem.contact, state.u, last).pressure
+
+
 def advance(problem: Problem, state: PathState, d_mm: float, angle_deg: float, stats: Stats,
             depth: int = 0) -> tuple[PathState, Stats]:
     """The path state at guide displacement d_mm, halving the load step on failure; and stats + the work."""
     g = problem.dirichlet(d_mm, angle_deg)
-    loaded = problem.at_guide(d_mm, angle_deg, state.multipliers)
+    loaded = problem.at_guide(d_mm, angle_deg, _next_multipliers(problem, state, angle_deg))
     guess = predict(state, d_mm)
     if problem.nonlinear and problem.min_jacobian(guess) <= 0:
         guess = state.u

@@ -24,6 +24,11 @@ from .linsolve import Factor, factorise, rigid_body_modes
 from .problem import Problem
 
 CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
+# Below this relative residual the tangent takes the contact's curvature term (contact.stiffness):
+# the exact Hessian, so the last iterations converge quadratically instead of halving the residual
+# each. Further out, where penetrations (and so pressures) are still far from equilibrium, the term
+# made the tangent indefinite (contact.py).
+EXACT_CONTACT_BELOW = 1e-2
 
 
 @dataclass(frozen=True)
@@ -111,13 +116,13 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
     return Eval(r, min_j, pi, Finv, J, touch)
 
 
-def _tangent(p: Problem, ev: Eval) -> np.ndarray:
+def _tangent(p: Problem, ev: Eval, exact_contact: bool = False) -> np.ndarray:
     if p.nonlinear:
         Ke = el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam)
     else:
         Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
     if ev.contact is not None:
-        ct.add_stiffness(p.contact, Ke, ev.contact)
+        ct.add_stiffness(p.contact, Ke, ev.contact, curvature=exact_contact)
     return Ke
 
 
@@ -171,7 +176,7 @@ def newton(problem: Problem, u: np.ndarray, g: np.ndarray, cache: FactorCache,
             return u, replace(stats, iterations=stats.iterations + it)
         if it == cfg.max_iterations:
             break
-        Ke = _tangent(p, ev)
+        Ke = _tangent(p, ev, exact_contact=res < EXACT_CONTACT_BELOW)
         rhs = -(ev.r + apply_matrix(p.pattern, Ke, du_d))[free]
         step = du_d
         step[free], stats = _solve_linearised(p, cache, assemble_matrix(p.pattern, Ke), rhs, stats)
