@@ -1,13 +1,18 @@
 """Slider-to-frame latency of the viewer in headless chromium (SwiftShader WebGL), and what each way of fetching a frame costs.
 
-    python scripts/bench_viewer.py [--model models/default] [--moves 200]
+    python scripts/bench_viewer.py [--model models/default] [--moves 200] [--pause-ms 30] [--interval-ms 16.7] [--rounds 50]
 
-Starts `python -m service` on a loopback port, opens /viewer, drags the displacement slider
-through `--moves` values from inside the page (service.browser.drag: each step fires `input`,
-waits for its frame, pauses 30 ms) and prints the page's own figures: input event to WebGL
-finished (lastFrameMs) and the /predict replies alone (lastFetchMs) and the render (lastRenderMs). Then, in the page, times
-the ways a frame could be fetched: the viewer's requests, the region cover, one request per
-drawn tissue, and the whole mesh in one request.
+Starts `python -m service` on a loopback port, opens /viewer and prints the page's own figures
+(window.__viewer, the 'viewer-frame' events):
+  * stepwise drag: `--moves` slider values, each step fires `input`, waits for its frame and
+    pauses `--pause-ms` (service.browser.drag); without targets, then with one clicked target.
+    Slider to frame is from the input event to WebGL finished (gl.finish); with the /predict
+    replies (fetch, split by the page's Resource Timing) and the render as parts of it;
+  * paced drag: `--moves` inputs every `--interval-ms` whatever the frames do, as a pointer fires
+    them (service.browser.paced_drag). The page keeps one frame in flight and coalesces the rest,
+    so a frame is timed from the latest input it shows and, separately, from the first input it
+    answers (the oldest one coalesced into it);
+  * fetch only: the ways a frame could be fetched, interleaved in each of `--rounds` rounds.
 """
 
 from __future__ import annotations
@@ -17,19 +22,19 @@ from pathlib import Path
 
 import numpy as np
 
-from service.browser import drag, open_viewer
+from service.browser import add_target, drag, open_viewer, paced_drag
 from service.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
-from service.viewer import region_cover
+from service.viewer import drawn_nodes, region_cover
 
-# Times `n` parallel-fetch rounds of the given /predict bodies in the page; returns the ms of each.
-FETCH_ROUNDS = """async ([bodies, n]) => { const out = [];
-  for (let i = 0; i < n; i++) {
+# `n` rounds; in each, every way (a list of /predict bodies fetched in parallel) once, in turn.
+FETCH_ROUNDS = """async ([ways, n]) => { const out = ways.map(() => []);
+  for (let i = 0; i < n; i++) for (const [j, bodies] of ways.entries()) {
     const t = performance.now();
     await Promise.all(bodies.map((b) => fetch('/predict', { method: 'POST', body: JSON.stringify({ ...b, angle_deg: i % 7 }),
       headers: { 'content-type': 'application/json', accept: 'application/octet-stream' } }).then((r) => r.arrayBuffer())));
-    out.push(performance.now() - t);
+    out[j].push(performance.now() - t);
   }
   return out; }"""
 
@@ -39,31 +44,70 @@ def _summary(ms) -> str:
     return f"p50 {np.percentile(ms, 50):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms, max {ms.max():.1f} ms"
 
 
+# Resource Timing of every /predict request since the last call: (sent, first byte, last byte) in ms from its start.
+PREDICT_TIMINGS = """() => { const out = performance.getEntriesByType('resource').filter((e) => e.name.endsWith('/predict'))
+  .map((e) => [e.requestStart - e.startTime, e.responseStart - e.startTime, e.responseEnd - e.startTime]);
+  performance.clearResourceTimings(); return out; }"""
+
+
+def _stepwise(page, values, pause_ms: float, label: str) -> None:
+    page.evaluate("performance.setResourceTimingBufferSize(1_000_000); performance.clearResourceTimings()")
+    frames = drag(page, "displacement", values, pause_ms=pause_ms)
+    sent, first, last = np.asarray(page.evaluate(PREDICT_TIMINGS)).T
+    print(f"  stepwise drag, {label}, {len(frames)} moves ({frames[-1]['requests']} /predict request a frame):")
+    for name, ms in (("slider to frame (input event to WebGL finished)", [f["frameMs"] for f in frames]),
+                     ("of which the /predict replies", [f["fetchMs"] for f in frames]),
+                     ("  fetch() to request sent", sent), ("  request sent to the reply's first byte", first - sent),
+                     ("  the reply's body", last - first),
+                     ("of which the render (three.js + gl.finish)", [f["renderMs"] for f in frames])):
+        print(f"    {name}: {_summary(ms)}")
+
+
+def _ways(folder, scene, case: dict) -> list[tuple[str, list[dict]]]:
+    """(label, /predict bodies) of each way a frame could be fetched."""
+    drawn = drawn_nodes(folder)
+    near = min(folder.regions, key=lambda r: abs(len(folder.regions[r]) - len(drawn)))
+    tissues = [t["name"] for t in scene["tissues"]]
+    return [("the viewer's requests", [{**case, **({} if r is None else {"region": r})} for r in scene["regions"]]),
+            ("region cover", [{**case, "region": r} for r in region_cover(folder, drawn)]),
+            ("one request per drawn tissue", [{**case, "region": t} for t in [*tissues, "markers"]]),
+            ("whole mesh, one request", [case]),
+            (f"one region the size of the drawn nodes ({near}: {len(folder.regions[near]):,} nodes; "
+             f"{len(drawn):,} drawn)", [{**case, "region": near}])]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--moves", type=int, default=200)
+    ap.add_argument("--pause-ms", type=float, default=30.0, help="stepwise drag: pause after each frame")
+    ap.add_argument("--interval-ms", type=float, default=1000 / 60, help="paced drag: time between inputs")
+    ap.add_argument("--rounds", type=int, default=50, help="fetch-only rounds")
     args = ap.parse_args()
     folder = read_model_folder(args.model)
     with local_service("--model", str(args.model)) as url, open_viewer(url, watch=False) as (page, _):
-        hi = page.evaluate("Number(document.getElementById('displacement').max)")
-        values = np.round(np.linspace(0.0, hi, 41), 2)
-        frames = drag(page, "displacement", values[np.arange(args.moves) % len(values)])
         scene = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json())")
-        tissues = [t["name"] for t in scene["tissues"]]
-        print(f"{scene['model']}: {args.moves} slider moves, {len(scene['regions'])} /predict requests a frame "
-              f"({', '.join(r or 'whole mesh' for r in scene['regions'])})")
-        print(f"  slider to frame (input event to WebGL finished): {_summary([f['frameMs'] for f in frames])}")
-        print(f"  of which the /predict replies: {_summary([f['fetchMs'] for f in frames])}")
-        print(f"  of which the render (three.js + gl.finish): {_summary([f['renderMs'] for f in frames])}")
-        case = {"displacement_mm": hi / 2}
-        cover = region_cover(folder, np.unique(np.concatenate([folder.regions["markers"], *(s.ravel() for s in folder.surfaces.values())])))
-        for label, bodies in (("the viewer's requests", [{**case, **({} if r is None else {"region": r})}
-                                                          for r in scene["regions"]]),
-                              ("region cover", [{**case, "region": r} for r in cover]),
-                              ("one request per drawn tissue", [{**case, "region": t} for t in [*tissues, "markers"]]),
-                              ("whole mesh, one request", [case])):
-            print(f"  fetch only, {label}, {len(bodies)} requests: {_summary(page.evaluate(FETCH_ROUNDS, [bodies, 50]))}")
+        print(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
+              f"{', '.join(r or 'the whole mesh' for r in scene['regions'])}")
+        hi = page.evaluate("Number(document.getElementById('displacement').max)")
+        values = np.round(np.linspace(0.0, hi, 41), 2)[np.arange(args.moves) % 41]
+        _stepwise(page, values, args.pause_ms, "no targets")
+        add_target(page)
+        _stepwise(page, values, args.pause_ms, "one target")
+        page.click("#clear-targets")
+        paced = paced_drag(page, "displacement", np.round(np.linspace(0.0, hi, args.moves), 3), interval_ms=args.interval_ms)
+        frames = paced["frames"]
+        print(f"  paced drag, {paced['inputs']} inputs every {args.interval_ms:.1f} ms over {paced['seconds']:.1f} s: "
+              f"{len(frames)} frames, {np.mean([f['inputs'] for f in frames]):.1f} inputs a frame (max "
+              f"{max(f['inputs'] for f in frames)}):")
+        print(f"    latest input shown to frame: {_summary([f['frameMs'] for f in frames])}")
+        print(f"    first input answered to frame: {_summary([f['firstInputMs'] for f in frames])}")
+        print(f"    of which the /predict replies: {_summary([f['fetchMs'] for f in frames])}")
+        ways = _ways(folder, scene, {"displacement_mm": hi / 2})
+        times = page.evaluate(FETCH_ROUNDS, [[bodies for _, bodies in ways], args.rounds])
+        print(f"  fetch only, {args.rounds} rounds, the ways interleaved:")
+        for (label, bodies), ms in zip(ways, times):
+            print(f"    {label}, {len(bodies)} request{'s' if len(bodies) > 1 else ''}: {_summary(ms)}")
 
 
 if __name__ == "__main__":

@@ -45,32 +45,46 @@ def serve_in_thread(app, *, timeout_s: float = 30.0) -> Iterator[str]:
 
 
 @contextmanager
-def open_viewer(url: str, *, width: int = 1280, height: int = 800, watch: bool = True) -> Iterator[tuple[object, list[str]]]:
-    """(page, problems) with /viewer loaded and its first frame drawn.
-
-    With `watch`, problems collects console errors, page errors and any request that leaves
-    `url` (the page must work offline); benchmarks leave it off, since every watched request
-    is an event for the driver to handle on the same cores.
-    """
+def launch_chromium() -> Iterator[object]:
+    """A headless Playwright browser on the chromium found on PATH, WebGL on SwiftShader."""
     from playwright.sync_api import sync_playwright
 
     executable = find_chromium()
     if executable is None:
         raise FileNotFoundError("no chromium on PATH (make system-deps installs it)")
-    problems: list[str] = []
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=executable, args=WEBGL_FLAGS)
         try:
-            page = browser.new_page(viewport={"width": width, "height": height})
-            if watch:
-                page.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
-                page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
-                page.on("request", lambda r: r.url.startswith(url) or problems.append(f"request off the service: {r.url}"))
-            page.goto(f"{url}/viewer")
-            page.wait_for_function("window.__viewer && window.__viewer.frames >= 1", timeout=60_000)
-            yield page, problems
+            yield browser
         finally:
             browser.close()
+
+
+@contextmanager
+def open_viewer(url: str, *, browser=None, width: int = 1280, height: int = 800,
+                watch: bool = True) -> Iterator[tuple[object, list[str]]]:
+    """(page, problems) with /viewer loaded and its first frame drawn, in `browser` or a chromium of its own.
+
+    With `watch`, problems collects console errors, page errors and any request that leaves
+    `url` (the page must work offline); benchmarks leave it off, since every watched request
+    is an event for the driver to handle on the same cores.
+    """
+    if browser is None:
+        with launch_chromium() as own, open_viewer(url, browser=own, width=width, height=height, watch=watch) as opened:
+            yield opened
+        return
+    problems: list[str] = []
+    page = browser.new_page(viewport={"width": width, "height": height})
+    try:
+        if watch:
+            page.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
+            page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+            page.on("request", lambda r: r.url.startswith(url) or problems.append(f"request off the service: {r.url}"))
+        page.goto(f"{url}/viewer")
+        page.wait_for_function("window.__viewer && window.__viewer.frames >= 1", timeout=60_000)
+        yield page, problems
+    finally:
+        page.close()
 
 
 def set_slider(page, slider: str, value: float, *, timeout_ms: float = 30_000) -> dict:
@@ -84,21 +98,59 @@ def set_slider(page, slider: str, value: float, *, timeout_ms: float = 30_000) -
 
 
 # A drag inside the page: each step sets the slider and fires `input` as the browser does while a
-# user drags, waits for the frame that shows it, then pauses (a hand moves at a few tens of Hz).
+# user drags, waits for the frame that shows it (the page's 'viewer-frame' event, so the wait
+# itself takes no CPU from the page and the service), then pauses (a hand moves at a few tens of Hz).
 DRAG = """async ([id, values, pauseMs]) => {
   const slider = document.getElementById(id), out = [];
+  const drawn = () => new Promise((resolve) => window.addEventListener('viewer-frame', (e) => resolve(e.detail), { once: true }));
   for (const value of values) {
-    const before = window.__viewer.frames;
+    const next = drawn();
     slider.value = String(value);
     slider.dispatchEvent(new Event('input', { bubbles: true }));
-    while (window.__viewer.frames === before || window.__viewer.busy) await new Promise((r) => setTimeout(r, 0));
-    const v = window.__viewer;
-    out.push({ frameMs: v.lastFrameMs, fetchMs: v.lastFetchMs, renderMs: v.lastRenderMs });
+    let frame = await next;
+    while (window.__viewer.busy) frame = await drawn();  // something else (a target) asked for a frame meanwhile
+    out.push(frame);
     await new Promise((r) => setTimeout(r, pauseMs));
   }
   return out; }"""
 
+# A paced drag: `input` every intervalMs whether or not the last frame is drawn, as a pointer
+# moving at 1000 / intervalMs Hz would fire it; the page coalesces what arrives during a fetch.
+# Returns every frame drawn meanwhile (the page's 'viewer-frame' events) and the inputs fired.
+PACED_DRAG = """async ([id, values, intervalMs]) => {
+  const slider = document.getElementById(id), frames = [];
+  const listen = (e) => frames.push(e.detail);
+  window.addEventListener('viewer-frame', listen);
+  const start = performance.now();
+  for (let i = 0; i < values.length; i++) {
+    const wait = start + i * intervalMs - performance.now();
+    if (wait > 0) await new Promise((r) => setTimeout(r, wait));
+    slider.value = String(values[i]);
+    slider.dispatchEvent(new Event('input', { bubbles: true }));
+  }
+  while (window.__viewer.busy) await new Promise((r) => setTimeout(r, 1));
+  window.removeEventListener('viewer-frame', listen);
+  return { frames, inputs: values.length, seconds: (performance.now() - start) / 1000 }; }"""
+
 
 def drag(page, slider: str, values, *, pause_ms: float = 30.0) -> list[dict]:
-    """Move a slider through `values` from inside the page; the page's own figures for each frame."""
+    """Move a slider through `values` from inside the page, one frame each; the page's own figures for each frame."""
     return page.evaluate(DRAG, [slider, [float(v) for v in values], pause_ms])
+
+
+def paced_drag(page, slider: str, values, *, interval_ms: float = 1000 / 60) -> dict:
+    """Fire the slider's `input` through `values` every `interval_ms` from inside the page; the frames drawn.
+
+    {"frames": [page figures per frame], "inputs": len(values), "seconds": how long it took}.
+    """
+    return page.evaluate(PACED_DRAG, [slider, [float(v) for v in values], interval_ms])
+
+
+def add_target(page, *, timeout_ms: float = 30_000) -> dict:
+    """Click the prostate as a user would and wait for the frame that shows the new target; that target."""
+    count = page.evaluate("__viewer.targets.length")
+    point = page.evaluate("__viewer.prostateScreenPoint()")
+    page.mouse.click(point["x"], point["y"])
+    page.wait_for_function("(n) => __viewer.targets.length === n && __viewer.targets[n - 1].motionMm !== null "
+                           "&& !__viewer.busy", arg=count + 1, timeout=timeout_ms)
+    return page.evaluate("__viewer.targets[__viewer.targets.length - 1]")

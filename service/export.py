@@ -6,8 +6,10 @@ where that matters). meshio and trimesh are imported inside the writers, so `imp
 loads neither and the JSON path of /predict never pays for them.
 
     vtu  every tet10 with cell data `tissue` (an index into the model's tissue names, in
-         GET /model's mesh.tissues; meshio's VTU writer drops field data, so the names are not
-         in the file) and point data `displacement` (mm)
+         GET /model's mesh.tissues) and, so that the names are in the file, `tissue_<name>` for
+         each tissue (1 on its cells, else 0: ParaView's Threshold or Slicer's scalars pick a
+         tissue by name; meshio's VTU writer drops field data, where a name table would go);
+         point data `displacement` (mm)
     ply  one triangle mesh: every tissue's outward surface, vertex property `node_id` (the mesh
          node), face property `tissue`, a colour per tissue
     glb  one named mesh per tissue (its outward surface), units "mm"
@@ -54,8 +56,10 @@ def vtu_bytes(folder: ModelFolder, displacement: np.ndarray) -> bytes:
     mesh = folder.mesh
     u = np.asarray(displacement, dtype=np.float32)
     cells = [("tetra10", mesh.tets.astype(np.int64))]
+    tissue = mesh.tissue.astype(np.int32)
+    named = {f"tissue_{name}": [(tissue == i).astype(np.uint8)] for i, name in enumerate(folder.manifest.mesh.tissues)}
     out = meshio.Mesh(folder.nodes.astype(np.float32) + u, cells, point_data={"displacement": u},
-                      cell_data={"tissue": [mesh.tissue.astype(np.int32)]})
+                      cell_data={"tissue": [tissue], **named})
     with tempfile.TemporaryDirectory() as tmp:  # meshio's VTU writer takes a path, not a buffer
         path = Path(tmp) / "mesh.vtu"
         meshio.write(path, out, file_format="vtu")

@@ -38,6 +38,18 @@ def test_vtu_holds_the_volume_with_tissues_and_displacement(tiny_client, tiny_fo
     np.testing.assert_array_equal(mesh.cell_data["tissue"][0], tiny_folder.mesh.tissue)
 
 
+def test_vtu_names_each_tissue_by_a_cell_array(tiny_client, tiny_folder, tmp_path):  # noqa: F811
+    """`tissue_<name>` is 1 on exactly that tissue's cells: the names are in the file, not only in X-Tissues."""
+    import meshio
+
+    (tmp_path / "case.vtu").write_bytes(_export(tiny_client, "vtu").content)
+    cell_data = meshio.read(tmp_path / "case.vtu").cell_data
+    names = tiny_folder.manifest.mesh.tissues
+    assert set(cell_data) == {"tissue", *(f"tissue_{name}" for name in names)}
+    for i, name in enumerate(names):
+        np.testing.assert_array_equal(cell_data[f"tissue_{name}"][0], tiny_folder.mesh.tissue == i, err_msg=name)
+
+
 def _triangle_set(triangles: np.ndarray) -> set:
     return set(map(tuple, np.sort(triangles, axis=1).tolist()))
 

@@ -1,16 +1,13 @@
 """The browser viewer: served offline by the service, deformed by /predict, and driven in Debian's chromium."""
 
 import io
-import os
 import re
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 from .helpers import predict_json
 
-from service.browser import find_chromium, open_viewer, serve_in_thread, set_slider
+from service.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider
 from service.viewer import STATIC
 
 needs_chromium = pytest.mark.skipif(find_chromium() is None,
@@ -65,14 +62,50 @@ def test_region_cover_holds_the_drawn_nodes_and_gather_finds_them(tiny_client, t
     replies, full = _replies(tiny_client, cover, case), _replies(tiny_client, [None], case)[0]
     source, row = gather(tiny_folder, cover, drawn)
     np.testing.assert_allclose([replies[s][r] for s, r in zip(source, row)], full[drawn], atol=1e-6)
+    others = np.setdiff1d(np.arange(len(tiny_folder.nodes)), tiny_folder.regions["markers"])[:5]
+    assert (gather(tiny_folder, ["markers"], others)[0] == -1).all()  # in no requested region: arrives nowhere
+
+
+def test_targets_interpolated_from_a_frame_equal_predict_points(tiny_client, tiny_folder):  # noqa: F811
+    """x = X + sum_i w_i (x_i - X_i) over /viewer/targets' nodes, read from the frame's replies, is /predict `points`."""
+    scene = tiny_client.get("/viewer/scene.json").json()
+    rng = np.random.default_rng(3)
+    tets = tiny_folder.tets[rng.choice(len(tiny_folder.tets), 5, replace=False)]
+    points = tiny_folder.nodes[tets[:, :4]].mean(axis=1)  # tet centroids: inside the mesh
+    reply = tiny_client.post("/viewer/targets", json={"points": points.tolist()})
+    assert reply.status_code == 200
+    case = {"displacement_mm": 5.5, "angle_deg": -7.0}
+    replies = [r.astype(np.float32) for r in _replies(tiny_client, scene["regions"], case)]
+    expected = np.asarray(predict_json(tiny_client, **case, points=points.tolist())["positions"])
+    for point, target, want in zip(points, reply.json()["targets"], expected):
+        nodes = np.array([replies[s][r] for s, r in zip(target["source"], target["row"])])  # (10, 3) deformed
+        u = np.asarray(target["weights"]) @ (nodes - np.asarray(target["reference"]).reshape(10, 3))
+        np.testing.assert_allclose(point + u, want, atol=1e-4)
+        assert sum(target["weights"]) == pytest.approx(1.0)
+
+
+def test_targets_outside_the_mesh_or_malformed_get_422(tiny_client, tiny_folder):  # noqa: F811
+    far = (tiny_folder.nodes.max(axis=0) + 50.0).tolist()
+    outside = tiny_client.post("/viewer/targets", json={"points": [far]})
+    assert outside.status_code == 422 and outside.json()["detail"][0]["type"] == "outside_mesh"
+    for body in ({"points": [[1e300, 0, 0]]}, {"points": []}, {"points": [[1, 2]]}, {"points": [["1", 2, 3]]},
+                 {"point": [1, 2, 3]}):
+        assert tiny_client.post("/viewer/targets", json=body).status_code == 422, body
 
 
 @pytest.fixture(scope="module")
-def viewer(tiny_model):  # noqa: F811
+def browser():
+    with launch_chromium() as launched:  # one per module: Playwright's sync API runs one at a time
+        yield launched
+
+
+@pytest.fixture(scope="module")
+def viewer(tiny_model, browser):  # noqa: F811
     from service.app import create_app
     from service.settings import Settings
 
-    with serve_in_thread(create_app(Settings(model=tiny_model))) as url, open_viewer(url) as (page, problems):
+    with serve_in_thread(create_app(Settings(model=tiny_model))) as url, \
+            open_viewer(url, browser=browser) as (page, problems):
         yield page, problems, url
 
 
@@ -117,16 +150,78 @@ def test_a_click_on_the_prostate_adds_a_target_that_moves_as_predict_says(viewer
     top = tiny_folder.manifest.envelope.displacement_mm[1]
     set_slider(page, "displacement", top)
     set_slider(page, "angle", 6.0)
-    point = page.evaluate("__viewer.prostateScreenPoint()")
-    page.mouse.click(point["x"], point["y"])
-    page.wait_for_function("__viewer.targets.length === 1 && __viewer.targets[0].motionMm !== null && !__viewer.busy")
-    target = page.evaluate("__viewer.targets[0]")
+    target = add_target(page)
     reply = predict_json(tiny_client, displacement_mm=top, angle_deg=6.0, points=[target["reference"]])
     assert target["motionMm"] == pytest.approx(np.linalg.norm(reply["displacements"][0]), abs=0.01)
     np.testing.assert_allclose(target["position"], reply["positions"][0], atol=0.01)
     assert f"moved {target['motionMm']:.2f} mm" in page.inner_text("#targets")
-    shot = tmp_path / "viewer.png"  # the test's artifact; VIEWER_SCREENSHOT=docs/viewer.png keeps a copy
+    # interpolated on the page from the frame's own reply: still one /predict request a frame
+    assert page.evaluate("__viewer.lastRequests") == 1
+    shot = tmp_path / "viewer.png"  # the test's artifact (docs/viewer.png comes from scripts/viewer_screenshot.py)
     page.screenshot(path=shot)
-    if os.environ.get("VIEWER_SCREENSHOT"):
-        shutil.copyfile(shot, Path(os.environ["VIEWER_SCREENSHOT"]))
     assert shot.stat().st_size > 10_000 and problems == []
+
+
+# Counts /predict fetches in flight (the page calls the global fetch), then fires `input` n times
+# in one task, as a burst of pointer moves that arrive while the first frame is being fetched.
+BURST = """async ([values]) => {
+  const inner = window.fetch;
+  let now = 0, most = 0;
+  window.fetch = (url, options) => {
+    if (url !== '/predict') return inner(url, options);
+    now += 1; most = Math.max(most, now);
+    return inner(url, options).finally(() => { now -= 1; });
+  };
+  const frames = [], listen = (e) => frames.push(e.detail);
+  window.addEventListener('viewer-frame', listen);
+  const slider = document.getElementById('displacement');
+  for (const value of values) {
+    slider.value = String(value);
+    slider.dispatchEvent(new Event('input', { bubbles: true }));
+  }
+  while (window.__viewer.busy) await new Promise((r) => setTimeout(r, 1));
+  window.removeEventListener('viewer-frame', listen);
+  window.fetch = inner;
+  return { most, frames, shown: window.__viewer.lastFrame.displacement_mm }; }"""
+
+
+@needs_chromium
+def test_slider_moves_during_a_fetch_are_coalesced_into_one_frame_showing_the_latest(viewer, tiny_folder):  # noqa: F811
+    page, problems, _ = viewer
+    set_slider(page, "displacement", 0.0)
+    values = np.round(np.linspace(0.1, tiny_folder.manifest.envelope.displacement_mm[1], 20), 2).tolist()
+    burst = page.evaluate(BURST, [values])
+    assert burst["most"] == 1  # never two frames' requests in flight
+    # the first move's frame, then one frame for the 19 that came during its fetch, showing the last
+    assert [f["inputs"] for f in burst["frames"]] == [1, 19] and burst["shown"] == values[-1]
+    last = burst["frames"][-1]
+    assert 0 < last["frameMs"] <= last["firstInputMs"]  # timed from the latest input shown; the first one is older
+    assert problems == []
+
+
+@needs_chromium
+def test_with_a_region_cover_frames_and_targets_still_match_predict(tiny_model, tiny_client, tiny_folder, browser,  # noqa: F811
+                                                                    monkeypatch):
+    """Where a frame asks for the region cover, a target whose tet leaves it is asked of /predict `points` as well."""
+    import service.viewer
+    from service.app import create_app
+    from service.settings import Settings
+
+    monkeypatch.setattr(service.viewer, "WHOLE_MESH_FRACTION", 2.0)  # never the whole mesh
+    with serve_in_thread(create_app(Settings(model=tiny_model))) as url, \
+            open_viewer(url, browser=browser) as (page, problems):
+        regions = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json()).then((s) => s.regions)")
+        assert None not in regions
+        covered = np.isin(tiny_folder.tets, np.concatenate([tiny_folder.regions[r] for r in regions])).all(axis=1)
+        inside, outside = (tiny_folder.nodes[tiny_folder.tets[np.flatnonzero(c)[0], :4]].mean(axis=0).tolist()
+                           for c in (covered, ~covered))  # a tet centroid whose nodes all arrive, and one whose don't
+        set_slider(page, "displacement", 4.0)
+        for n, point in enumerate((inside, outside), start=1):
+            page.evaluate("(p) => __viewer.addTarget(p)", point)
+            page.wait_for_function("(n) => __viewer.targets.length === n && __viewer.targets[n - 1].motionMm !== null "
+                                   "&& !__viewer.busy", arg=n)
+        targets = page.evaluate("__viewer.targets")
+        reply = predict_json(tiny_client, displacement_mm=4.0, angle_deg=0.0, points=[inside, outside])
+        np.testing.assert_allclose([t["position"] for t in targets], reply["positions"], atol=0.01)
+        assert page.evaluate("__viewer.targetsLocal()") == [True, False]
+        assert page.evaluate("__viewer.lastRequests") == len(regions) + 1 and problems == []

@@ -1,8 +1,11 @@
 // The 3-D viewer: reference surfaces from /viewer/scene.json once, then per frame POST /predict
-// for the few regions holding every drawn node (binary float32 little-endian, count x 3) and for
-// the targets (points); each drawn node's position is gathered from those replies.
-// Slider-to-frame latency (input event to WebGL finished) is shown bottom left and kept in
-// window.__viewer for tests.
+// for the few regions holding every drawn node (binary float32 little-endian, count x 3); each
+// drawn node's position is gathered from those replies, and each target is interpolated from them
+// with its tet's P2 weights (/viewer/targets, once per target).
+// At most one frame's requests are in flight: slider moves during a fetch are coalesced, and the
+// next frame shows the latest value. Slider-to-frame latency, from the input event whose value the
+// frame shows to WebGL finished, is shown bottom left and kept in window.__viewer; so is the time
+// from the first input the frame answers (the older, coalesced ones).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/OrbitControls.js';
 
@@ -18,18 +21,20 @@ const OPACITY = { adipose: 0.1, rectal_wall: 0.45 };
 const $ = (id) => document.getElementById(id);
 
 const viewer = window.__viewer = {
-  ready: false, frames: 0, lastFrameMs: null, lastFetchMs: null, lastRenderMs: null, errors: [], targets: [],
-  lastFrame: null,
+  ready: false, frames: 0, lastFrameMs: null, lastFirstInputMs: null, lastInputs: null, lastFetchMs: null,
+  lastRenderMs: null, lastRequests: null, errors: [], targets: [], lastFrame: null,
 };
-const state = { d: 0, a: 0, inflight: false, pendingSince: null, layers: [], targets: [] };
+// pendingSince: the first input not yet drawn (null: nothing to draw); latestInput: the last one,
+// whose values (d, a) the next frame shows; inputs: how many the next frame answers.
+const state = { d: 0, a: 0, inflight: false, pendingSince: null, latestInput: null, inputs: 0, layers: [], targets: [] };
 Object.defineProperty(viewer, 'busy', { get: () => state.inflight || state.pendingSince !== null });
 let scene, camera, renderer, controls, gl, markers, guide, info;
 
-function colourAt(t) {
+function colourInto(out, at, t) {  // viridis at t in 0..1, written to out[at .. at + 2]
   const x = Math.min(Math.max(t, 0), 1) * (COLOUR_MAP.length - 1);
   const i = Math.min(Math.floor(x), COLOUR_MAP.length - 2);
-  const f = x - i;
-  return COLOUR_MAP[i].map((c, k) => c + f * (COLOUR_MAP[i + 1][k] - c));
+  const f = x - i, lo = COLOUR_MAP[i], hi = COLOUR_MAP[i + 1];
+  for (let k = 0; k < 3; k++) out[at + k] = lo[k] + f * (hi[k] - lo[k]);
 }
 
 function showError(err) {
@@ -109,6 +114,7 @@ function buildScene() {
   controls.target.copy(centre);
   controls.update();
   controls.addEventListener('change', render);
+  state.markerPositions = new Float32Array(info.markers.reference.length);
   markers = new THREE.InstancedMesh(new THREE.SphereGeometry(1.2, 16, 12),
     new THREE.MeshPhongMaterial({ color: 0xffdc00 }), info.markers.reference.length / 3);
   scene.add(markers);
@@ -146,7 +152,7 @@ function applyLayer(layer, replies) {
     for (let i = 0; i < positions.length; i += 3) {
       const u = Math.hypot(positions[i] - layer.reference[i], positions[i + 1] - layer.reference[i + 1],
         positions[i + 2] - layer.reference[i + 2]);
-      colours.array.set(colourAt(u / scale), i);
+      colourInto(colours.array, i, u / scale);
     }
     colours.needsUpdate = true;
   }
@@ -154,19 +160,32 @@ function applyLayer(layer, replies) {
   layer.mesh.geometry.computeBoundingSphere();  // the picking ray tests against it
 }
 
+const MARKER_MATRIX = new THREE.Matrix4();
 function applyMarkers(replies) {
-  const positions = gatherInto(new Float32Array(info.markers.reference.length), replies, info.markers);
-  const m = new THREE.Matrix4();
+  const positions = gatherInto(state.markerPositions, replies, info.markers);
   for (let i = 0; i < positions.length / 3; i++) {
-    markers.setMatrixAt(i, m.makeTranslation(positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]));
+    markers.setMatrixAt(i, MARKER_MATRIX.makeTranslation(positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]));
   }
   markers.instanceMatrix.needsUpdate = true;
   markers.computeBoundingSphere();
 }
 
-function applyTargets(positions) {
-  state.targets.forEach((target, i) => {
-    const now = positions.subarray(3 * i, 3 * i + 3);
+// x = X + sum_i w_i (x_i - X_i) over the target's tet nodes, from the frame's replies
+// (what /predict `points` computes, contracts.interpolate)
+function interpolateTarget(target, replies) {
+  const { source, row, weights, reference } = target.tet, out = target.now;
+  out.set(target.reference);
+  for (let i = 0; i < weights.length; i++) {
+    const from = replies[source[i]], r = 3 * row[i];
+    for (let k = 0; k < 3; k++) out[k] += weights[i] * (from[r + k] - reference[3 * i + k]);
+  }
+  return out;
+}
+
+// `points`: a /predict points reply for all targets, or null where each is interpolated from `replies`
+function applyTargets(targets, replies, points) {
+  targets.forEach((target, i) => {
+    const now = points ? points.subarray(3 * i, 3 * i + 3) : interpolateTarget(target, replies);
     target.position = Array.from(now);
     target.motionMm = Math.hypot(now[0] - target.reference[0], now[1] - target.reference[1], now[2] - target.reference[2]);
     target.sphere.position.set(now[0], now[1], now[2]);
@@ -178,11 +197,14 @@ function applyTargets(positions) {
   viewer.targets = state.targets.map(({ reference, position, motionMm, frame }) => ({ reference, position, motionMm, frame }));
 }
 
-// One frame: the latest slider values, every drawn region and the targets in parallel, then render.
+// One frame: the latest slider values, every drawn region (and, only for a target the regions
+// cannot interpolate, the targets' points) in parallel, then render. Never two frames in flight:
+// inputs that arrive meanwhile wait, coalesced, for the next.
 async function frame() {
   if (state.inflight || state.pendingSince === null) return;
-  const since = state.pendingSince;
-  state.pendingSince = null;
+  const first = state.pendingSince, latest = state.latestInput, inputs = state.inputs;
+  state.pendingSince = state.latestInput = null;
+  state.inputs = 0;
   state.inflight = true;
   const d = state.d, a = state.a, targets = state.targets.slice();
   try {
@@ -190,26 +212,28 @@ async function frame() {
     const fetchStart = performance.now();
     const asked = regions.map((region) => predict(region === null ? { displacement_mm: d, angle_deg: a }
       : { displacement_mm: d, angle_deg: a, region }));  // null: the whole mesh
-    if (targets.length) asked.push(predict({ displacement_mm: d, angle_deg: a, points: targets.map((t) => t.reference) }));
+    const askPoints = targets.some((t) => !t.local);
+    if (askPoints) asked.push(predict({ displacement_mm: d, angle_deg: a, points: targets.map((t) => t.reference) }));
     const replies = await Promise.all(asked);
     const fetchMs = performance.now() - fetchStart;
     state.layers.forEach((layer) => applyLayer(layer, replies));
     applyMarkers(replies);
-    if (targets.length && targets.length === state.targets.length) {
-      targets.forEach((t) => { t.frame = viewer.frames + 1; });
-      applyTargets(replies[replies.length - 1]);
-    } else if (state.targets.length) state.pendingSince ??= performance.now();  // a target came during the fetch
+    targets.forEach((t) => { t.frame = viewer.frames + 1; });
+    applyTargets(targets, replies, askPoints ? replies[replies.length - 1] : null);
     placeGuide(d, a);
     const renderStart = performance.now();
     render();
     gl.finish();  // count the frame when it is drawn, not when its commands are queued
-    viewer.lastRenderMs = performance.now() - renderStart;
-    const ms = performance.now() - since;
-    viewer.lastFrameMs = ms;
-    viewer.lastFetchMs = fetchMs;
-    viewer.frames += 1;
-    viewer.lastFrame = { displacement_mm: d, angle_deg: a };
-    $('latency').textContent = `frame ${ms.toFixed(1)} ms (fetch ${fetchMs.toFixed(1)} ms, ${regions.length + (targets.length ? 1 : 0)} requests)`;
+    const end = performance.now();
+    Object.assign(viewer, { lastRenderMs: end - renderStart, lastFrameMs: end - latest, lastFirstInputMs: end - first,
+      lastInputs: inputs, lastFetchMs: fetchMs, lastRequests: asked.length, frames: viewer.frames + 1,
+      lastFrame: { displacement_mm: d, angle_deg: a } });
+    const coalesced = inputs > 1 ? `; ${inputs} moves, first ${viewer.lastFirstInputMs.toFixed(1)} ms` : '';
+    $('latency').textContent = `frame ${viewer.lastFrameMs.toFixed(1)} ms (fetch ${fetchMs.toFixed(1)} ms, `
+      + `${asked.length} request${asked.length > 1 ? 's' : ''}${coalesced})`;
+    window.dispatchEvent(new CustomEvent('viewer-frame', { detail: {
+      frameMs: viewer.lastFrameMs, firstInputMs: viewer.lastFirstInputMs, inputs, fetchMs, renderMs: viewer.lastRenderMs,
+      requests: asked.length } }));
   } catch (err) {
     showError(err);
   } finally {
@@ -218,8 +242,11 @@ async function frame() {
   }
 }
 
-function request(since) {
-  if (state.pendingSince === null) state.pendingSince = since;  // the oldest input not yet drawn
+// Something to draw since `at` (an input event's time): the next frame shows it.
+function request(at) {
+  state.pendingSince ??= at;
+  state.latestInput = at;
+  state.inputs += 1;
   frame();
 }
 
@@ -249,7 +276,12 @@ function motionLine(from, to) {
   return line;
 }
 
-function addTarget(reference) {
+async function addTarget(reference) {
+  const reply = await fetch('/viewer/targets', { method: 'POST', body: JSON.stringify({ points: [reference] }),
+    headers: { 'content-type': 'application/json' } });
+  if (!reply.ok) throw new Error(`/viewer/targets ${reply.status}: ${await reply.text()}`);
+  const [tet] = (await reply.json()).targets;  // its tet's nodes: where they arrive in a frame, and their weights
+  const local = tet.source.every((s) => s >= 0);  // else the frame asks /predict points for it
   const i = state.targets.length;
   const sphere = new THREE.Mesh(new THREE.SphereGeometry(1.0, 16, 12), TARGET);
   const origin = new THREE.Mesh(new THREE.SphereGeometry(0.6, 12, 8), TARGET_ORIGIN);
@@ -260,7 +292,8 @@ function addTarget(reference) {
   item.textContent = `T${i + 1}: …`;
   $('targets').appendChild(item);
   scene.add(sphere, origin, line);
-  state.targets.push({ reference, sphere, origin, line, item, motionMm: null, position: null, frame: null });
+  state.targets.push({ reference, tet, local, now: new Float64Array(3), sphere, origin, line, item,
+    motionMm: null, position: null, frame: null });
   request(performance.now());
 }
 
@@ -278,7 +311,8 @@ function pickTarget(event) {
   const [A, B, C] = corners.map((k) => new THREE.Vector3().fromBufferAttribute(position, k));
   const w = THREE.Triangle.getBarycoord(hit.point, A, B, C, new THREE.Vector3());
   const R = layer.reference;
-  addTarget([0, 1, 2].map((k) => w.x * R[3 * corners[0] + k] + w.y * R[3 * corners[1] + k] + w.z * R[3 * corners[2] + k]));
+  addTarget([0, 1, 2].map((k) => w.x * R[3 * corners[0] + k] + w.y * R[3 * corners[1] + k] + w.z * R[3 * corners[2] + k]))
+    .catch(showError);
 }
 
 const raycaster = new THREE.Raycaster();
@@ -308,6 +342,9 @@ viewer.prostateScreenPoint = () => {
   return null;
 };
 viewer.cameraPosition = () => camera.position.toArray();
+viewer.cameraDistance = () => camera.position.distanceTo(controls.target);
+viewer.addTarget = (reference) => addTarget(reference).catch(showError);  // for tests: a target at a reference point
+viewer.targetsLocal = () => state.targets.map((t) => t.local);  // each interpolated on the page, or asked by points
 
 function setupLegend() {
   const stops = COLOUR_MAP.map((c, i) => `rgb(${c.map((v) => Math.round(255 * v)).join(',')}) ${100 * i / (COLOUR_MAP.length - 1)}%`);

@@ -1,0 +1,55 @@
+"""Screenshot of the viewer on a model, as the README shows it: the real page in headless chromium (service.browser).
+
+    python scripts/viewer_screenshot.py [--model models/default] [--displacement-mm 10] [--angle-deg 0]
+                                        [--targets 1] [--zoom 1.6] [--out docs/viewer.png]
+
+Starts `python -m service --model M`, opens /viewer, moves the sliders as a user would, clicks the
+prostate `--targets` times (service.browser.add_target), zooms towards the prostate with the
+mouse wheel until the camera is `--zoom` times closer, and saves the page, 1280 x 800.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from service.browser import add_target, open_viewer, set_slider
+from service.loadtest import local_service
+from service.settings import DEFAULT_MODEL
+
+
+def zoom(page, factor: float) -> None:
+    """Turn the mouse wheel over the view until the camera is `factor` times closer (OrbitControls dollies to the prostate)."""
+    distance = lambda: page.evaluate("__viewer.cameraDistance()")  # noqa: E731
+    goal = distance() / factor
+    page.mouse.move(300, 300)
+    while distance() > goal:
+        page.mouse.wheel(0, -20)
+        page.wait_for_timeout(20)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
+    ap.add_argument("--displacement-mm", type=float, default=10.0)
+    ap.add_argument("--angle-deg", type=float, default=0.0)
+    ap.add_argument("--targets", type=int, default=1, help="prostate clicks, each a target")
+    ap.add_argument("--zoom", type=float, default=1.6, help="camera this many times closer than the page's default")
+    ap.add_argument("--out", type=Path, default=Path("docs/viewer.png"))
+    args = ap.parse_args()
+    with local_service("--model", str(args.model)) as url, open_viewer(url) as (page, problems):
+        zoom(page, args.zoom)
+        for _ in range(args.targets):  # at rest, so the line shows the whole motion
+            add_target(page)
+        set_slider(page, "angle", args.angle_deg)
+        state = set_slider(page, "displacement", args.displacement_mm)
+        page.screenshot(path=args.out)
+        if problems:
+            raise SystemExit("error: " + "; ".join(problems))
+        moved = page.evaluate("__viewer.targets.map((t) => t.motionMm.toFixed(2))")
+        print(f"{args.out}: {args.model.name} at {state['lastFrame']['displacement_mm']} mm, "
+              f"{state['lastFrame']['angle_deg']} deg; targets moved {', '.join(moved) or 'none'} mm")
+
+
+if __name__ == "__main__":
+    main()
