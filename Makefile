@@ -9,7 +9,7 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 IMAGE ?= deform-service
 
-.PHONY: install serve test test-fast bench bench-service tradeoff convergence linear-validity default-model container-test clean system-deps viewer-assets labelmesh
+.PHONY: install serve test test-fast bench bench-service tradeoff convergence linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -113,6 +113,13 @@ labelmesh: $(STAMP)
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(CGAL_DEBS) >/dev/null; \
 	fi
 	$(PY) -m pip install -q -e '.[labelmesh]'
+
+# Marker motion of the three anatomical variants (fem_offline/scenes/anatomy/) at 10 mm, beta = 0, on their
+# 1 mm label maps' meshes with the scenes' physics: docs/anatomy_table.json (scripts/anatomy_table.py; needs
+# `make labelmesh`). Each variant's mesh and solve resume: VARIANTS=small runs one.
+VARIANTS ?= small medium large
+anatomy-table: $(STAMP)
+	MKL_NUM_THREADS=2 $(PY) scripts/anatomy_table.py --variants $(VARIANTS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

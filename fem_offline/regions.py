@@ -22,13 +22,21 @@ def interface_nodes(mesh: TetMesh, tissue: int) -> np.ndarray:
     return np.unique(six[surface])
 
 
+# The octant (signs of x, y, z from the prostate's centre) of each marker, in marker order.
+MARKER_OCTANTS = np.array([[sx, sy, sz] for sz in (1, -1) for sy in (1, -1) for sx in (-1, 1)])
+
+
+def marker_names() -> list[str]:
+    """A name per marker, its octant in marker order: 'x-y+z+' lies on the -x, +y, +z side of the prostate's centre."""
+    return ["".join(f"{axis}{'+' if s > 0 else '-'}" for axis, s in zip("xyz", signs)) for signs in MARKER_OCTANTS]
+
+
 def marker_nodes(mesh: TetMesh, surface: np.ndarray, n: int = 8) -> np.ndarray:
     """Eight prostate-surface nodes nearest the octant directions of the prostate's bounding box."""
     p = mesh.nodes[surface]
     centre = 0.5 * (p.min(axis=0) + p.max(axis=0))
     half = 0.5 * (p.max(axis=0) - p.min(axis=0))
-    signs = np.array([[sx, sy, sz] for sz in (1, -1) for sy in (1, -1) for sx in (-1, 1)])[:n]
-    targets = centre + half * signs / np.sqrt(3.0)
+    targets = centre + half * MARKER_OCTANTS[:n] / np.sqrt(3.0)
     picks = [surface[np.argmin(np.linalg.norm(p - t, axis=1))] for t in targets]
     return np.asarray(picks)
 

@@ -16,6 +16,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from .anatomy import problems as anatomy_problems
+from .anatomy import tip_problem
 from .guide import direction as guide_direction
 from .materials import youngs_from_shear_wave_kpa
 
@@ -72,9 +74,13 @@ class Phantom(_Strict):
     spine_box_mm: tuple[Vec3, Vec3] = ((-15.0, -41.0, 8.0), (15.0, -36.0, 72.0))
 
     @model_validator(mode="after")
-    def _rectum_wall(self) -> Phantom:
+    def _anatomy(self) -> Phantom:
+        """Shapes inside the block, a rectal wall around the lumen, no organ cut by another (anatomy.problems)."""
         if self.rectum_inner_radius_mm >= self.rectum_outer_radius_mm:
             raise ValueError("rectum_inner_radius_mm must be below rectum_outer_radius_mm")
+        found = anatomy_problems(self)
+        if found:
+            raise ValueError("; ".join(found))
         return self
 
 
@@ -265,6 +271,9 @@ class Scene(_Strict):
             missing = set(PHANTOM_TISSUES) - set(self.tissues)
             if missing:
                 raise ValueError(f"the phantom needs [tissues.{'], ['.join(sorted(missing))}]")
+            problem = tip_problem(self.phantom, self.guide)
+            if problem:
+                raise ValueError(problem)
         return self
 
     def sha256(self) -> str:
@@ -299,9 +308,18 @@ def parse_scene(data: dict, *, source: str = "scene") -> Scene:
         raise SceneError(f"{source}: " + "; ".join(lines)) from None
 
 
-def load_scene(path: str | Path, **overrides) -> Scene:
-    """Read and validate a TOML scene; relative mesh paths resolve against the scene's folder."""
-    path = Path(path)
+def _merged(base: dict, over: dict) -> dict:
+    """`over` on top of `base`, table by table: a key in both tables is merged, any other value replaced."""
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def _read_scene_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+    """A scene file's data with its file paths made absolute and the scene it `extends` merged underneath."""
+    if path.resolve() in chain:
+        raise SceneError(f"{path}: extends itself ({' -> '.join(p.name for p in (*chain, path))})")
     try:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
@@ -313,5 +331,21 @@ def load_scene(path: str | Path, **overrides) -> Scene:
             file = Path(data[section]["path"])
             data[section]["path"] = str(file if file.is_absolute() else path.parent / file)
             data.setdefault("phantom", None)
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str):
+        raise SceneError(f"{path}: extends: expected the file name of a scene, got {base!r}")
+    return _merged(_read_scene_toml(path.parent / base, (*chain, path.resolve())), data)
+
+
+def load_scene(path: str | Path, **overrides) -> Scene:
+    """Read and validate a TOML scene; relative file paths resolve against the scene's folder.
+
+    `extends = "default.toml"` (relative to the file) starts from another scene: the file's own
+    tables are merged over it key by key, so a variant states only what differs.
+    """
+    path = Path(path)
+    data = _read_scene_toml(path)
     data.update(overrides)
     return parse_scene(data, source=str(path))

@@ -59,3 +59,30 @@ def test_toml_errors_are_one_line(tmp_path):
         load_scene(bad)
     with pytest.raises(SceneError, match="no such scene file"):
         load_scene(tmp_path / "missing.toml")
+
+
+def test_extends_merges_the_variant_over_its_base_table_by_table(tmp_path):
+    """A variant states only what differs: its scene is the base with those keys replaced, hash included."""
+    (tmp_path / "variant.toml").write_text(
+        f'extends = "{SCENES / "default.toml"}"\nname = "v"\n[phantom]\nprostate_semi_axes_mm = [22.5, 10.0, 10.0]\n'
+        "[tissues.prostate]\nyoungs_kpa = 70.0\n")
+    variant = load_scene(tmp_path / "variant.toml")
+    full = load_scene(SCENES / "default.toml").model_dump(mode="json")
+    full["name"] = "v"
+    full["phantom"]["prostate_semi_axes_mm"] = [22.5, 10.0, 10.0]
+    full["tissues"]["prostate"]["youngs_kpa"] = 70.0
+    assert variant.sha256() == parse_scene(full).sha256()
+    assert variant.phantom.rectum_outer_radius_mm == 12.0 and variant.tissues["spine"].bone
+
+
+def test_extends_errors_name_the_file(tmp_path):
+    (tmp_path / "a.toml").write_text('extends = "b.toml"\n')
+    (tmp_path / "b.toml").write_text('extends = "a.toml"\n')
+    with pytest.raises(SceneError, match=r"a.toml: extends itself \(a.toml -> b.toml -> a.toml\)"):
+        load_scene(tmp_path / "a.toml")
+    (tmp_path / "c.toml").write_text('extends = "missing.toml"\n')
+    with pytest.raises(SceneError, match=r"missing.toml: no such scene file"):
+        load_scene(tmp_path / "c.toml")
+    (tmp_path / "d.toml").write_text("extends = 3\n")
+    with pytest.raises(SceneError, match=r"d.toml: extends: expected the file name of a scene"):
+        load_scene(tmp_path / "d.toml")
