@@ -47,10 +47,11 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return path
 
 
-def read_manifest_json(path: Path, model: type[BaseModel], *, version: int, error: type[Exception], kind: str,
-                       missing: str, stale: str):
+def read_manifest_json(path: Path, model: type[BaseModel], *, version: int | tuple[int, ...], error: type[Exception],
+                       kind: str, missing: str, stale: str):
     """A folder's versioned manifest as `model`; `error` says why not: missing, not JSON, another format
-    (with `stale`, what to do about it) or a field that does not validate."""
+    (with `stale`, what to do about it) or a field that does not validate. `version`: the format, or
+    the formats, this code reads."""
     if not path.is_file():
         raise error(f"{path.parent}: no {path.name}; {missing}")
     try:
@@ -58,8 +59,9 @@ def read_manifest_json(path: Path, model: type[BaseModel], *, version: int, erro
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not valid JSON ({exc})") from None
     found = data.get("format_version", "unversioned") if isinstance(data, dict) else "unversioned"
-    if found != version:
-        raise error(f"{path.parent}: {kind} format {found!r}, this code reads {version}; {stale}")
+    versions = version if isinstance(version, tuple) else (version,)
+    if found not in versions:
+        raise error(f"{path.parent}: {kind} format {found!r}, this code reads {' and '.join(map(str, versions))}; {stale}")
     try:
         return model.model_validate(data)
     except ValidationError as exc:

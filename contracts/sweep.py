@@ -8,12 +8,20 @@
                                 angle_deg and the solver's record (CaseRecord fields)
 A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus reference_positions.
 
-A snapshot with det(I + grad u) <= 0 at a quadrature point (min_det_f <= 0) is not a deformation: an
-element is inside out. The nonlinear solver never returns one; the linear model's superposition
-does once the guide pushes far enough. Such snapshots are written (they are the model's answer)
-but listed in `validity`, and training reads `valid_up_to_mm` from it. Folders written before the
-check have no `validity`: `sweep_validity` derives it from a nonlinear folder's records (the solver
-measured them) and refuses a linear one (its records say 1.0 without having measured).
+A snapshot with det(I + grad u) <= 0 somewhere is not a deformation: an element is inside out. Each
+snapshot records min det F twice: `min_det_f` at the quadrature points the solver integrates at (4
+per tet), and `min_det_f_probe` at the denser probe points (fem_offline.validity.PROBE_INTORDER: the
+11 points per tet of the degree-4 rule), because a P2 field can invert between the solver's points
+while positive at them. The nonlinear solver never returns a state with min_det_f <= 0, but its
+min_det_f_probe can be; the linear model's superposition turns both <= 0 once the guide pushes far
+enough. Such snapshots are written (they are the model's answer) but listed in `validity`, which
+counts a snapshot as inverted when either value is <= 0, and training reads `valid_up_to_mm` from it.
+
+Formats: 3 records min_det_f_probe; 2 (still read) did not, and its validity judged the solver's
+points only. A format-2 folder resumed by a sweep becomes format 3 with its old snapshots unprobed
+(`validity.n_unprobed` counts them). Folders written before the check have no `validity` at all:
+`sweep_validity` derives it from a nonlinear folder's records (the solver measured them) and refuses
+a linear one (its records say 1.0 without having measured).
 """
 
 from __future__ import annotations
@@ -29,7 +37,8 @@ from .envelope import Envelope
 from .files import atomic_savez, atomic_write_text, read_manifest_json, sha256
 from .mesh import TetMesh, read_mesh
 
-SWEEP_FORMAT = 2
+SWEEP_FORMAT = 3  # what this code writes
+READ_FORMATS = (2, 3)  # what it reads: format 2 lacks min_det_f_probe
 MANIFEST = "manifest.json"
 MESH_FILE = "mesh.npz"
 SNAPSHOTS = "snapshots"
@@ -46,8 +55,9 @@ class CaseRecord(_Frozen):
     factorizations: int = 0
     cg_iterations: int = 0
     residual: float  # final ||r_free|| / ||reactions||
-    min_det_f: float
+    min_det_f: float  # at the solver's quadrature points
     seconds: float
+    min_det_f_probe: float | None = None  # at the probe points between them; None: not measured (not stored)
 
 
 class SnapshotRecord(_Frozen):
@@ -57,9 +67,15 @@ class SnapshotRecord(_Frozen):
     angle_deg: float
     newton_iterations: int
     residual: float
-    min_det_f: float
+    min_det_f: float  # at the solver's quadrature points (4 per tet)
     seconds: float
     mirrored_from: str | None = None
+    min_det_f_probe: float | None = None  # at the probe points (11 per tet); None: written before format 3
+
+    @property
+    def lowest_det_f(self) -> float:
+        """The lower of min_det_f and min_det_f_probe (NaN if either is): <= 0 or NaN means inverted."""
+        return self.min_det_f if self.min_det_f_probe is None else float(np.minimum(self.min_det_f, self.min_det_f_probe))
 
 
 class Grid(_Frozen):
@@ -92,17 +108,18 @@ def snapshot_file(angle_index: int, displacement_index: int) -> str:
 
 
 class Validity(_Frozen):
-    """Where the snapshots stop being deformations: det(I + grad u) <= 0 at some quadrature point."""
+    """Where the snapshots stop being deformations: det(I + grad u) <= 0 at a quadrature point or a probe point."""
 
-    min_det_f: float | None  # over every quadrature point of every snapshot; None: no snapshot yet
+    min_det_f: float | None  # over every quadrature and probe point of every snapshot; None: no snapshot yet
     n_inverted: int
-    inverted: list[str] = []  # snapshot files with min_det_f <= 0, grid order
+    inverted: list[str] = []  # snapshot files with min_det_f or min_det_f_probe <= 0, grid order
     first_inverted_mm: list[float | None]  # per grid angle (grid.angles_deg order); None: none inverted
     valid_up_to_mm: float  # the largest grid displacement up to which every angle's snapshots are valid (0: none)
+    n_unprobed: int | None = None  # snapshots without min_det_f_probe, judged at the solver's points only; None: format 2
 
 
 class SweepManifest(_Frozen):
-    format_version: Literal[2] = SWEEP_FORMAT
+    format_version: Literal[2, 3] = SWEEP_FORMAT
     scene_name: str
     scene_sha256: str
     scene: dict[str, Any]  # the validated scene (fem_offline.scene.Scene, as JSON)
@@ -125,9 +142,9 @@ class SweepManifest(_Frozen):
 
 def write_case(path: str | Path, displacement: np.ndarray, *, displacement_mm: float, angle_deg: float,
                record: CaseRecord, **extra) -> Path:
-    """One solved case, atomically."""
+    """One solved case, atomically (a record field that is None is left out of the file)."""
     return atomic_savez(path, displacement=displacement, displacement_mm=displacement_mm, angle_deg=angle_deg,
-                        **record.model_dump(), **extra)
+                        **record.model_dump(exclude_none=True), **extra)
 
 
 def read_cases(files: list[Path]) -> tuple[np.ndarray, np.ndarray]:
@@ -149,16 +166,19 @@ def snapshot_record(folder: Path, name: str) -> SnapshotRecord:
             file=name, sha256=sha256(folder / name), displacement_mm=float(z["displacement_mm"]),
             angle_deg=float(z["angle_deg"]), newton_iterations=int(z["newton_iterations"]),
             residual=float(z["residual"]), min_det_f=float(z["min_det_f"]), seconds=float(z["seconds"]),
-            mirrored_from=str(z["mirrored_from"]) if "mirrored_from" in z.files else None)
+            mirrored_from=str(z["mirrored_from"]) if "mirrored_from" in z.files else None,
+            min_det_f_probe=float(z["min_det_f_probe"]) if "min_det_f_probe" in z.files else None)
 
 
 def validity_of(grid: Grid, rows: list[SnapshotRecord]) -> Validity:
-    """Summarise the snapshots' min_det_f over the grid (the rows on disk; an unfinished sweep's part)."""
-    bad = [r for r in rows if not r.min_det_f > 0]  # NaN counts as inverted
+    """Summarise the snapshots' det F over the grid (the rows on disk; an unfinished sweep's part): a
+    snapshot is inverted when min_det_f or min_det_f_probe is <= 0."""
+    bad = [r for r in rows if not r.lowest_det_f > 0]  # NaN counts as inverted
     first = [min((r.displacement_mm for r in bad if r.angle_deg == a), default=None) for a in grid.angles_deg]
-    return Validity(min_det_f=min((r.min_det_f for r in rows), default=None), n_inverted=len(bad),
+    return Validity(min_det_f=min((r.lowest_det_f for r in rows), default=None), n_inverted=len(bad),
                     inverted=[r.file for r in bad], first_inverted_mm=first,
-                    valid_up_to_mm=valid_up_to_mm(grid.displacements_mm, [r.displacement_mm for r in bad]))
+                    valid_up_to_mm=valid_up_to_mm(grid.displacements_mm, [r.displacement_mm for r in bad]),
+                    n_unprobed=sum(r.min_det_f_probe is None for r in rows))
 
 
 def valid_up_to_mm(displacements_mm, inverted_mm) -> float:
@@ -184,7 +204,7 @@ def write_manifest(folder: str | Path, manifest: SweepManifest) -> Path:
 
 def read_manifest(folder: str | Path) -> SweepManifest:
     """The folder's manifest; ValueError saying why when it is missing, of another format or invalid."""
-    return read_manifest_json(Path(folder) / MANIFEST, SweepManifest, version=SWEEP_FORMAT, error=ValueError,
+    return read_manifest_json(Path(folder) / MANIFEST, SweepManifest, version=READ_FORMATS, error=ValueError,
                               kind="sweep", missing="is it a `fem_offline sweep` output folder?",
                               stale="run the sweep again into a new folder")
 

@@ -85,6 +85,9 @@ def _sweep(args) -> int:
     print(f"{args.out}: {manifest.n_done}/{manifest.n_expected} snapshots, {manifest.wall_seconds_this_run:.1f} s this run")
     if manifest.validity.n_inverted:
         print(_inversion_warning(manifest), file=sys.stderr)
+    if manifest.validity.n_unprobed:
+        print(f"note: {manifest.validity.n_unprobed} snapshots were written before det F was probed between the "
+              "quadrature points (sweep format 2); they are judged at the solver's points only", file=sys.stderr)
     for err in manifest.errors:
         print(f"failed: {err}", file=sys.stderr)
     return 1 if manifest.errors else 0
@@ -95,8 +98,8 @@ def _inversion_warning(manifest) -> str:
     v = manifest.validity
     firsts = sorted({d for d in v.first_inverted_mm if d is not None})
     first = f"{firsts[0]:g} mm" if len(firsts) == 1 else f"{firsts[0]:g} to {firsts[-1]:g} mm depending on the angle"
-    return (f"warning: {v.n_inverted} of {manifest.n_done} snapshots turn an element inside out (det(I + grad u) <= 0, "
-            f"min {v.min_det_f:.3g}), the first at {first}. They are "
+    return (f"warning: {v.n_inverted} of {manifest.n_done} snapshots turn an element inside out (det(I + grad u) <= 0 "
+            f"at a quadrature or probe point, min {v.min_det_f:.3g}), the first at {first}. They are "
             f"written, and listed under `validity` in manifest.json. Every angle is valid up to {v.valid_up_to_mm:g} mm; "
             f"`training fit` fits and serves only that part.")
 

@@ -6,6 +6,10 @@ measures, along each angle of a sweep grid: min det F, the number of inverted te
 are, the exact first crossing of det F = 0 (bisection on the cubic between grid points), and the
 displacement up to which every angle is valid (contracts.sweep.valid_up_to_mm). The study that
 prints it is scripts/linear_validity.py (docs/linear_validity.md).
+
+A P2 field's det F is a polynomial over each tet, so it can turn <= 0 between the solver's 4
+quadrature points while positive at them. PROBE_INTORDER names the denser rule every sweep snapshot
+is also checked at (`probe`; contracts.sweep's min_det_f_probe).
 """
 
 from __future__ import annotations
@@ -21,6 +25,8 @@ from contracts.sweep import read_cases, valid_up_to_mm
 from .guide import direction, tip
 from .linear import det_f, det_f_cubic, linear_modes
 from .problem import Problem
+
+PROBE_INTORDER = 4  # the degree-4 rule: 11 points per tet, against the solver's 4 (degree 2)
 
 
 @dataclass(frozen=True)
@@ -58,6 +64,11 @@ def resampled(problem: Problem, intorder: int) -> Problem:
     G = np.stack([basis.basis[a][0].grad for a in range(10)]).transpose(2, 3, 0, 1)  # (n_tets, n_qp, 10, 3)
     active = problem.active if problem.active is not None else slice(None)
     return replace(problem, G=np.ascontiguousarray(G[active]), W=np.ascontiguousarray(basis.dx[active]))
+
+
+def probe(problem: Problem) -> Problem:
+    """The problem at the probe points (PROBE_INTORDER): its min_jacobian is a snapshot's min_det_f_probe."""
+    return resampled(problem, PROBE_INTORDER)
 
 
 def points_per_tet(intorder: int) -> int:

@@ -20,12 +20,13 @@ import numpy as np
 
 from fem_offline import elasticity as el
 from fem_offline.continuation import solve_path
-from fem_offline.linear import linear_modes, superpose
+from fem_offline.linear import linear_modes, min_det_f, superpose
 from fem_offline.linsolve import AMG_MIN_DOFS
 from fem_offline.mesh import skfem_mesh
 from fem_offline.meshing import load_or_build_mesh
 from fem_offline.problem import build_problem
 from fem_offline.scene import load_scene
+from fem_offline.validity import PROBE_INTORDER, points_per_tet, probe
 
 
 def timed(fn, repeat=1):
@@ -56,6 +57,20 @@ def skfem_assembly_seconds(problem) -> float:
     t0 = time.perf_counter()
     asm(linear_elasticity, basis, lam=np.repeat(lam[:, None], nq, 1), mu=np.repeat(mu[:, None], nq, 1))
     return time.perf_counter() - t0
+
+
+def probe_cost(problem, lin_problem, modes, u: np.ndarray, scene) -> str:
+    """What the sweep's det F probe (validity.probe) adds: its basis, and per snapshot, nonlinear and linear."""
+    t_basis, probed = timed(lambda: probe(problem), repeat=3)
+    t4, _ = timed(lambda: problem.min_jacobian(u), repeat=5)
+    t11, _ = timed(lambda: probed.min_jacobian(u), repeat=5)
+    lin_probed, d = probe(lin_problem), scene.sweep.displacements_mm
+    n_cases = len(scene.sweep.angles_deg) * len(d)
+    c4, _ = timed(lambda: [min_det_f(lin_problem, modes, d, b) for b in scene.sweep.angles_deg])
+    c11, _ = timed(lambda: [min_det_f(lin_probed, modes, d, b) for b in scene.sweep.angles_deg])
+    return (f"det F probe ({points_per_tet(PROBE_INTORDER)} points per tet, recorded with every snapshot): basis "
+            f"{t_basis:.2f} s once per process; per nonlinear snapshot {1e3 * t11:.1f} ms (4 points: {1e3 * t4:.1f} ms); "
+            f"per linear snapshot by det F's cubic {1e3 * c11 / n_cases:.2f} ms (4 points: {1e3 * c4 / n_cases:.2f} ms)")
 
 
 def main() -> None:
@@ -93,6 +108,7 @@ def main() -> None:
     per = median(secs)
     print(f"nonlinear: median {per:.2f} s per snapshot (mean {np.mean(secs):.2f}), Newton iterations median {median(its)} "
           f"(max {max(its)}), min det F {steps[-1][2].min_det_f:.3f} at {steps[-1][0]} mm, beta 10 deg, first {len(steps)} steps")
+    print(probe_cost(problem, lin_problem, modes, steps[-1][1].ravel(), scene))
     print(f"projected nonlinear sweep: {n_cases} x {np.mean(secs):.2f} s / {args.workers} workers = "
           f"{n_cases * np.mean(secs) / args.workers / 60:.1f} min")
     n_path = len(scene.sweep.displacements_mm)

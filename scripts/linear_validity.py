@@ -24,8 +24,8 @@ from contracts.sweep import MESH_FILE, read_manifest
 from fem_offline.meshing import mesh_for_scene
 from fem_offline.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.validity import (det_f_curves, points_per_tet, probed_min_det_f, recorded_min_det_f, table_validity,
-                                  tissue_along_axis, valid_up_to)
+from fem_offline.validity import (PROBE_INTORDER, det_f_curves, points_per_tet, probed_min_det_f, recorded_min_det_f,
+                                  table_validity, tissue_along_axis, valid_up_to)
 
 
 def _round(x, digits: int = 4):
@@ -63,6 +63,13 @@ def _table_summary(displacements_mm, table) -> dict:
             "min_det_f_at_max": np.nanmin(table[:, -1]), "n_snapshots": int(np.isfinite(table).sum())}
 
 
+def _as_the_sweep_records(displacements_mm, curves, dense) -> dict:
+    """What a linear sweep of this grid writes in its manifest's validity: a snapshot is inverted when det F
+    is <= 0 at the solver's points or at the probe points (fem_offline.sweep, contracts.sweep.validity_of)."""
+    table = np.minimum(np.stack([c.min_det_f for c in curves]), np.stack([c.min_det_f for c in dense]))
+    return {**_table_summary(displacements_mm, table), "n_inverted": int((table <= 0).sum())}
+
+
 def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
     scene = load_scene(scene_path)
     manifest, mesh = _nonlinear(sweep, scene) if sweep is not None else (None, mesh_for_scene(scene))
@@ -84,7 +91,10 @@ def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
                     "linear_min_det_f": c.min_det_f, "linear_n_inverted_tets": c.n_inverted_tets} for c in curves],
         "denser_points": {"intorder": intorder, "points_per_tet": points_per_tet(intorder),
                           "linear": _summary(dense)},
+        "linear_sweep_validity": _as_the_sweep_records(grid.displacements_mm, curves, dense),
     }
+    for row, c in zip(out["angles"], dense):
+        row["linear_min_det_f_denser"] = c.min_det_f
     if manifest is not None:
         recorded = recorded_min_det_f(manifest)
         probed = probed_min_det_f(problem, sweep, manifest, intorder=intorder)
@@ -96,9 +106,18 @@ def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
     return _round(out)
 
 
+def _span(first_mm) -> str:
+    """Where the angles' first inverted displacements lie (None: not inverted), as words."""
+    found = [d for d in first_mm if d is not None]
+    if not found:
+        return "nowhere"
+    lo, hi = min(found), max(found)
+    return f"at {lo:g} mm" if lo == hi else f"at {lo:g} to {hi:g} mm depending on the angle"
+
+
 def markdown(s: dict) -> str:
     d_max, step = s["displacements_mm"][-1], s["displacements_mm"][1] - s["displacements_mm"][0]
-    lin, dp, nl = s["linear"], s["denser_points"], s.get("nonlinear")
+    lin, dp, nl, sw = s["linear"], s["denser_points"], s.get("nonlinear"), s["linear_sweep_validity"]
     wall = ", ".join(f"{r['tissue']} {r['from']:g}–{r['to']:g} mm" for r in s["tissue_along_axis_mm"])
     lines = [
         "# Up to which guide displacement the linear model is a deformation",
@@ -112,9 +131,7 @@ def markdown(s: dict) -> str:
         f"{lin['first_inversion_mm']:g} mm (bisection on det F's cubic in d); at {d_max:g} mm min det F is "
         f"{lin['min_det_f_at_max']:g} with {lin['n_inverted_tets_at_max'][0]}–{lin['n_inverted_tets_at_max'][1]} tets "
         f"inverted, all within {max(r['farthest_from_tip_mm'] for r in s['angles']):g} mm of the guide tip "
-        f"(centroids). These are the points the solver integrates at (4 per tet) and "
-        f"`fem_offline sweep` checks; `training fit` fits such a sweep only up to the valid displacement and cuts the "
-        f"model's envelope there.",
+        f"(centroids). These are the points the solver integrates at (4 per tet).",
         "",
         f"Along the guide axis (β = 0) from the tip: {wall}.",
         "",
@@ -129,7 +146,13 @@ def markdown(s: dict) -> str:
               f"at {d_max:g} mm)"
               + (f", and the nonlinear snapshots up to {dense_nl['valid_up_to_mm']:g} mm (min det F "
                  f"{dense_nl['min_det_f_at_max']:g} at {d_max:g} mm): the solver keeps det F > 0 only where it "
-                 f"integrates." if dense_nl else "."), ""]
+                 f"integrates." if dense_nl else "."),
+              "",
+              f"`fem_offline sweep` records min det F at both sets of points with every snapshot and counts a snapshot "
+              f"as inverted when either is <= 0: a linear sweep of this grid has {sw['n_inverted']} of "
+              f"{sw['n_snapshots']} snapshots inverted, the first {_span(sw['first_inverted_mm'])}, and is valid up "
+              f"to {sw['valid_up_to_mm']:g} mm at every angle; `training fit` fits it only up to there and cuts the "
+              f"model's envelope there.", ""]
     head = "| β (°) | first inversion (mm) | linear min det F at {0:g} mm | inverted tets at {0:g} mm | where | farthest from tip (mm) |"
     lines += [head.format(d_max) + (f" nonlinear min det F at {d_max:g} mm |" if nl else ""),
               "|---|---|---|---|---|---|" + ("---|" if nl else "")]
@@ -153,8 +176,9 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
     ap.add_argument("--sweep", type=Path, help="the scene's nonlinear sweep folder (its mesh and recorded min det F)")
     ap.add_argument("--docs", type=Path, default=Path("docs"), help="where linear_validity.{json,md} go")
-    ap.add_argument("--intorder", type=int, default=4, help="a denser quadrature rule to probe det F between the "
-                    "solver's points (default 4: 11 points per tet; the solver's rule has 4)")
+    ap.add_argument("--intorder", type=int, default=PROBE_INTORDER, help="a denser quadrature rule to probe det F "
+                    f"between the solver's points (default {PROBE_INTORDER}, the sweep's probe: 11 points per tet; the "
+                    "solver's rule has 4)")
     args = ap.parse_args()
     s = study(args.scene, args.sweep, args.intorder)
     args.docs.mkdir(parents=True, exist_ok=True)
@@ -169,7 +193,10 @@ def main() -> None:
     dp = s["denser_points"]
     line += (f". At {dp['points_per_tet']} points per tet: linear valid up to {dp['linear']['valid_up_to_mm']:g} mm"
              + (f", nonlinear up to {dp['nonlinear']['valid_up_to_mm']:g} mm" if "nonlinear" in dp else ""))
+    sw = s["linear_sweep_validity"]
     print(line)
+    print(f"as a linear sweep records it (either set of points): {sw['n_inverted']} of {sw['n_snapshots']} snapshots "
+          f"inverted, the first {_span(sw['first_inverted_mm'])}, valid up to {sw['valid_up_to_mm']:g} mm")
     print(f"wrote {args.docs / 'linear_validity.json'} and {args.docs / 'linear_validity.md'}")
 
 

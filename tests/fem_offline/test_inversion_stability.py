@@ -1,5 +1,6 @@
 """A linear sweep pushed until elements turn inside out reports it (stability suite): true det F per
-snapshot, the inverted ones listed in the manifest, a warning from the CLI, no silent resume."""
+snapshot, at the solver's quadrature points and at the probe points between them, the inverted ones
+listed in the manifest, a warning from the CLI, no silent resume."""
 
 import json
 import shutil
@@ -14,17 +15,28 @@ from fem_offline.linear import det_f, linear_modes, min_det_f, superpose
 from fem_offline.problem import build_problem
 from fem_offline.scene import SceneError, load_scene, parse_scene
 from fem_offline.sweep import run_sweep
+from fem_offline.validity import probe
 
 from .cli_helpers import LINEAR, scene_file
+
+GRID = """[sweep]
+displacement_step_mm = 2.0
+displacement_max_mm = 10.0
+angle_min_deg = -10.0
+angle_max_deg = 10.0
+angle_step_deg = 10.0
+"""
 
 
 @pytest.fixture(scope="module")
 def inverted_sweep(tmp_path_factory):
-    """tiny.toml linear, 2.5 ... 10 mm x -10, 0, 10 deg, through the CLI. On this mesh det F first reaches 0
-    between 6 and 6.5 mm (measured), so 7.5 and 10 mm are inverted at every angle."""
+    """tiny.toml linear, 2, 4 ... 10 mm x -10, 0, 10 deg, through the CLI. On this mesh det F first reaches 0
+    at 6.33 to 6.40 mm at the solver's 4 quadrature points per tet, at 5.80 to 5.86 mm at the 11 probe points
+    (measured, linear_validity.det_f_curves), so 6 mm is inverted between the solver's points only (min det F
+    0.12 there, -0.07 at the probe points), and 8 and 10 mm at both, at every angle."""
     tmp = tmp_path_factory.mktemp("inverted")
     out = tmp / "sweep"
-    assert main(["sweep", "--scene", str(scene_file(tmp, "lin", LINEAR)), "--out", str(out)]) == 0
+    assert main(["sweep", "--scene", str(scene_file(tmp, "lin", LINEAR + GRID)), "--out", str(out)]) == 0
     return out
 
 
@@ -42,17 +54,34 @@ def test_each_snapshot_records_its_true_min_det_f(inverted_sweep, sweep_problem)
             expected = sweep_problem.min_jacobian(z["displacement"].ravel())
             assert float(z["min_det_f"]) == pytest.approx(expected, rel=1e-9, abs=1e-12)
         assert row.min_det_f == pytest.approx(expected, rel=1e-9, abs=1e-12)
-        assert (row.min_det_f > 0) == (row.displacement_mm <= 5.0), (row.file, row.min_det_f)
+        assert (row.min_det_f > 0) == (row.displacement_mm <= 6.0), (row.file, row.min_det_f)
+
+
+def test_each_snapshot_records_its_true_min_det_f_between_the_quadrature_points(inverted_sweep, sweep_problem):
+    """min_det_f_probe of every file = min det F of its displacement at the 11 probe points per tet (from the
+    cubic in d, so against a direct evaluation): <= 0 from 6 mm on, where min_det_f is still > 0."""
+    manifest, probed = folder.read_manifest(inverted_sweep), probe(sweep_problem)
+    assert probed.G.shape[1] == 11 and sweep_problem.G.shape[1] == 4
+    for row in manifest.snapshots:
+        with np.load(inverted_sweep / row.file) as z:
+            expected = probed.min_jacobian(z["displacement"].ravel())
+        assert row.min_det_f_probe == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        assert (row.min_det_f_probe > 0) == (row.displacement_mm <= 4.0), (row.file, row.min_det_f_probe)
+    between = [r for r in manifest.snapshots if r.displacement_mm == 6.0]
+    assert len(between) == 3 and all(r.min_det_f > 0.1 and r.min_det_f_probe < -0.05 for r in between)
 
 
 def test_the_manifest_lists_the_inverted_and_where_every_angle_is_valid(inverted_sweep):
+    """Inverted at either set of points: 6 mm (between the solver's points only), 8 and 10 mm, at 3 angles."""
     manifest = folder.read_manifest(inverted_sweep)
     v = manifest.validity
-    inverted = sorted(r.file for r in manifest.snapshots if r.min_det_f <= 0)
-    assert sorted(v.inverted) == inverted and v.n_inverted == len(inverted) == 6  # 7.5 and 10 mm at 3 angles
-    assert v.first_inverted_mm == [7.5, 7.5, 7.5]
-    assert v.valid_up_to_mm == 5.0
-    assert v.min_det_f == min(r.min_det_f for r in manifest.snapshots) < -1.0
+    inverted = sorted(r.file for r in manifest.snapshots if r.min_det_f <= 0 or r.min_det_f_probe <= 0)
+    assert sorted(v.inverted) == inverted and v.n_inverted == len(inverted) == 9
+    assert {r.file for r in manifest.snapshots if r.displacement_mm == 6.0} <= set(v.inverted)
+    assert v.first_inverted_mm == [6.0, 6.0, 6.0]
+    assert v.valid_up_to_mm == 4.0 and v.n_unprobed == 0
+    at_qp, at_probe = (min(getattr(r, k) for r in manifest.snapshots) for k in ("min_det_f", "min_det_f_probe"))
+    assert v.min_det_f == at_probe < at_qp < -1.0
 
 
 def test_the_sweep_cli_warns_with_the_count_and_the_valid_range(tmp_path, inverted_sweep, capsys):
@@ -63,8 +92,8 @@ def test_the_sweep_cli_warns_with_the_count_and_the_valid_range(tmp_path, invert
     scene.write_text((inverted_sweep.parent / "lin.toml").read_text())
     assert main(["sweep", "--scene", str(scene), "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "warning: 6 of 12 snapshots turn an element inside out" in err
-    assert "the first at 7.5 mm." in err and "Every angle is valid up to 5 mm" in err
+    assert "warning: 9 of 15 snapshots turn an element inside out" in err
+    assert "the first at 6 mm." in err and "Every angle is valid up to 4 mm" in err and "note:" not in err
 
 
 def test_a_linear_folder_written_before_the_check_is_not_resumed(tmp_path, inverted_sweep):
@@ -78,6 +107,31 @@ def test_a_linear_folder_written_before_the_check_is_not_resumed(tmp_path, inver
         folder.sweep_validity(folder.read_manifest(out))
     with pytest.raises(SceneError, match="linear snapshots written before det.*use a new --out"):
         run_sweep(load_scene(inverted_sweep.parent / "lin.toml"), out)
+
+
+def test_a_format_2_folder_resumes_with_its_unprobed_snapshots_counted(tmp_path, inverted_sweep, capsys):
+    """A folder written before the probe (no min_det_f_probe in its files; format 2) still resumes: the new
+    snapshot is probed, the old ones are judged at the solver's points only, counted and named by the CLI."""
+    out = tmp_path / "format2"
+    shutil.copytree(inverted_sweep, out)
+    for f in (out / folder.SNAPSHOTS).glob("*.npz"):
+        with np.load(f) as z:
+            old = {k: z[k] for k in z.files if k != "min_det_f_probe"}
+        np.savez(f, **old)
+    data = json.loads((out / folder.MANIFEST).read_text())
+    data["format_version"] = 2
+    (out / folder.MANIFEST).write_text(json.dumps(data))
+    assert folder.read_manifest(out).format_version == 2
+    (out / folder.snapshot_file(1, 2)).unlink()  # 0 deg, 6 mm: inverted between the solver's points only
+    scene = tmp_path / "lin.toml"
+    scene.write_text((inverted_sweep.parent / "lin.toml").read_text())
+    assert main(["sweep", "--scene", str(scene), "--out", str(out)]) == 0
+    manifest = folder.read_manifest(out)
+    v = manifest.validity
+    assert manifest.format_version == 3 and v.n_unprobed == 14
+    assert [r.file for r in manifest.snapshots if r.min_det_f_probe is not None] == [folder.snapshot_file(1, 2)]
+    assert v.first_inverted_mm == [8.0, 6.0, 8.0] and v.valid_up_to_mm == 4.0  # the probed one caught, the others not
+    assert "note: 14 snapshots were written before det F was probed" in capsys.readouterr().err
 
 
 def test_det_f_is_the_cubic_in_d_that_superposition_gives(tiny_linear_problem):

@@ -6,12 +6,16 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
+from contracts.sweep import read_manifest
 from fem_offline.mesh import load as load_mesh
 from fem_offline.problem import build_problem
-from fem_offline.scene import load_scene
+from fem_offline.scene import load_scene, parse_scene
 from fem_offline.solve import solve_case
+from fem_offline.mirror import mirror_map, reflect
 from fem_offline.sweep import run_sweep
+from fem_offline.validity import probe
 
 from .cli_helpers import LINEAR, MINI, ROOT, cli, scene_file
 
@@ -21,7 +25,7 @@ KILL_AFTER_FIRST_SNAPSHOT = """
 import os, signal, sys
 from pathlib import Path
 from fem_offline import sweep
-from fem_offline.scene import load_scene
+from fem_offline.scene import load_scene, parse_scene
 
 write = sweep.write_snapshot
 
@@ -94,13 +98,36 @@ def test_dask_cluster_matches_local_pool(tmp_path):
         np.testing.assert_allclose(a, b, atol=1e-12)
 
 
-def test_symmetric_sweep_solves_half_and_reflects_the_rest(tmp_path, tiny_problem):
+@pytest.fixture(scope="module")
+def mirrored_sweep(tmp_path_factory):
+    """The nonlinear MINI sweep (1, 2 mm x -10, +10 deg): +10 solved, -10 reflected."""
+    tmp = tmp_path_factory.mktemp("mirrored")
+    run_sweep(load_scene(scene_file(tmp, "mini", MINI)), tmp / "sweep")
+    return tmp / "sweep"
+
+
+def test_symmetric_sweep_solves_half_and_reflects_the_rest(mirrored_sweep, tiny_problem):
     """Angles -10 and +10: only +10 is solved; the -10 snapshots are its reflections and equal a
     direct nonlinear solve at -10 deg (the mesh and the guide are mirror-symmetric)."""
-    scene = load_scene(scene_file(tmp_path, "mini", MINI))
-    manifest = run_sweep(scene, tmp_path / "sweep")
+    manifest = read_manifest(mirrored_sweep)
     assert manifest.n_done == 4 and manifest.n_mirrored == 2 and not manifest.errors
-    with np.load(tmp_path / "sweep" / "snapshots" / "a000_d001.npz") as z:  # -10 deg, 2 mm
+    with np.load(mirrored_sweep / "snapshots" / "a000_d001.npz") as z:  # -10 deg, 2 mm
         assert str(z["mirrored_from"]) == "snapshots/a001_d001.npz" and float(z["angle_deg"]) == -10.0
         direct, _ = solve_case(tiny_problem, 2.0, -10.0, step_mm=1.0)
         np.testing.assert_allclose(z["displacement"], direct, atol=1e-6 * np.abs(direct).max())
+
+
+def test_nonlinear_snapshots_record_det_f_at_the_probe_points(mirrored_sweep):
+    """Solved and reflected snapshots alike: min_det_f_probe = min det F of the file's field at the 11 probe
+    points per tet (the rule is symmetric under x -> -x, so a reflection keeps its twin's value)."""
+    manifest = read_manifest(mirrored_sweep)
+    mesh = load_mesh(mirrored_sweep / "mesh.npz")
+    problem = build_problem(parse_scene(manifest.scene), mesh)
+    probed, image = probe(problem), mirror_map(mesh)
+    for row in manifest.snapshots:
+        with np.load(mirrored_sweep / row.file) as z:
+            u = z["displacement"]
+        assert row.min_det_f_probe == pytest.approx(probed.min_jacobian(u.ravel()), rel=1e-9)
+        assert row.min_det_f_probe == pytest.approx(probed.min_jacobian(reflect(u, image).ravel()), rel=1e-9)
+        assert 0 < row.min_det_f_probe < 1 and row.min_det_f == pytest.approx(problem.min_jacobian(u.ravel()), rel=1e-6)
+    assert manifest.validity.n_unprobed == 0 and manifest.validity.n_inverted == 0

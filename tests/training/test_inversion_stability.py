@@ -27,12 +27,13 @@ def _edit_manifest(path, **change):
 
 
 def test_the_model_answers_only_where_every_angle_is_valid(tiny_model, tiny_sweep):
-    """The tiny linear sweep (0..10 mm every 1 mm) inverts from 7 mm on: the model is fitted on, and
-    answers for, 0..6 mm, and its manifest counts what was left out and why."""
+    """The tiny linear sweep (0..10 mm every 1 mm) inverts from 6 mm on (between the solver's quadrature
+    points; at them from 7 mm): the model is fitted on, and answers for, 0..5 mm, and its manifest counts
+    what was left out and why."""
     sweep = folder.read_manifest(tiny_sweep)
     cut_mm = sweep.validity.valid_up_to_mm
     assert 0 < cut_mm < 10.0 and sweep.validity.n_inverted > 0
-    assert all(r.min_det_f > 0 for r in sweep.snapshots if r.displacement_mm <= cut_mm)
+    assert all(r.min_det_f > 0 and r.min_det_f_probe > 0 for r in sweep.snapshots if r.displacement_mm <= cut_mm)
     m = read_model_folder(tiny_model).manifest
     assert m.envelope.displacement_mm == (0.0, cut_mm) and m.envelope.angle_deg == (-10.0, 10.0)
     cut = m.envelope_cut
@@ -42,6 +43,17 @@ def test_the_model_answers_only_where_every_angle_is_valid(tiny_model, tiny_swee
     assert cut.min_det_f == sweep.validity.min_det_f <= 0
     assert m.network.n_train == len(sweep.snapshots) - beyond - len(m.metrics.table3)
     assert "Envelope cut" in (tiny_model / "report.md").read_text()
+
+
+def test_the_cut_follows_det_f_between_the_quadrature_points(tiny_model, tiny_sweep):
+    """Just beyond the cut every snapshot is positive at the solver's 4 points per tet; what stops the
+    envelope there is det F <= 0 at the 11 probe points between them."""
+    sweep = folder.read_manifest(tiny_sweep)
+    cut_mm = sweep.validity.valid_up_to_mm
+    beyond = [r for r in sweep.snapshots if r.displacement_mm == cut_mm + 1.0]
+    assert len(beyond) == 11 and all(r.min_det_f > 0 for r in beyond)
+    assert any(r.min_det_f_probe <= 0 for r in beyond)
+    assert read_model_folder(tiny_model).manifest.envelope.displacement_mm == (0.0, cut_mm)
 
 
 def test_held_out_cases_beyond_the_cut_are_counted_not_evaluated(tiny_sweep, tmp_path):
