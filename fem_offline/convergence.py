@@ -1,13 +1,17 @@
 """Grid convergence at the quantities users ask for: Roache's grid convergence index (ASME V&V 20).
 
-Three meshes whose every size is scaled by a constant ratio r (h_coarse = r h_medium = r^2 h_fine)
-give, for a scalar f with values f3, f2, f1 (coarse, medium, fine):
+Three meshes whose sizes are scaled by ratios r32 = h_coarse / h_medium and r21 = h_medium / h_fine
+(both >= 1.3, equal in a systematic refinement) give, for a scalar f with values f3, f2, f1
+(coarse, medium, fine):
 
     e32 = f3 - f2, e21 = f2 - f1, R = e21 / e32
     0 < R < 1: monotonic convergence; R < 0: oscillatory; R >= 1: monotonic divergence
-    observed order       p = ln(1 / R) / ln r                      (monotonic convergence only)
-    Richardson estimate  f_ext = f1 + (f1 - f2) / (r^p - 1)
-    GCI (fine, absolute) = Fs |f1 - f2| / (r^q - 1),  Fs = 1.25,  q = min(p, P_FORMAL)
+    observed order       p = ln(1 / R) / ln r                      (monotonic convergence, r21 = r32 = r)
+                         p = (ln(1 / R) + ln((r21^p - 1) / (r32^p - 1))) / ln r21, by fixed point
+                         (r21 != r32; Celik et al. 2008, the procedure ASME V&V 20 follows)
+    Richardson estimate  f_ext = f1 + (f1 - f2) / (r21^p - 1)
+    GCI (fine, absolute) = Fs |f1 - f2| / (r21^q - 1),  Fs = 1.25,  q = min(p, P_FORMAL)
+    GCI (medium)         = Fs |f2 - f3| / (r32^q - 1)
 Capping the order at the scheme's (P_FORMAL) keeps a lucky, too-high observed p from shrinking the
 band. Without monotonic convergence no order can be observed: the band is then Fs times the spread
 of the three values, a heuristic that says "not in the asymptotic range" rather than a bound.
@@ -37,6 +41,7 @@ log = logging.getLogger(__name__)
 
 SAFETY = 1.25  # Roache's factor of safety for three-grid studies
 P_FORMAL = 2.0  # P2 tets: displacement error O(h^3) in L2 but O(h^2) pointwise near the guide's kinks
+MIN_RATIO = 1.3  # Roache's smallest size ratio between levels
 NEAR_TIP_MM = 8.0  # the near-tip zone, reported apart from the rest
 
 
@@ -52,8 +57,27 @@ class Richardson:
     gci_medium: float
 
 
-def richardson(coarse: float, medium: float, fine: float, ratio: float) -> Richardson:
-    """Observed order, Richardson extrapolation and GCI of three values on meshes refined by `ratio`."""
+def _ratios(ratio: float | tuple[float, float]) -> tuple[float, float]:
+    """(r32, r21) from one constant ratio or the pair."""
+    return (float(ratio), float(ratio)) if np.isscalar(ratio) else (float(ratio[0]), float(ratio[1]))
+
+
+def observed_order(e32: float, e21: float, ratio: float | tuple[float, float]) -> float:
+    """p from two monotonically shrinking changes (0 < e21 / e32 < 1) on meshes refined by (r32, r21)."""
+    r32, r21 = _ratios(ratio)
+    p = np.log(e32 / e21) / np.log(r21)
+    for _ in range(100):  # converges in a few iterations for r32 ~ r21
+        q = np.log((r21**p - 1.0) / (r32**p - 1.0))
+        p, last = (np.log(e32 / e21) + q) / np.log(r21), p
+        if abs(p - last) < 1e-12:
+            break
+    return float(p)
+
+
+def richardson(coarse: float, medium: float, fine: float, ratio: float | tuple[float, float]) -> Richardson:
+    """Observed order, Richardson extrapolation and GCI of three values on meshes refined by `ratio`
+    (one constant ratio, or (r32, r21))."""
+    r32, r21 = _ratios(ratio)
     e32, e21 = coarse - medium, medium - fine
     values = (float(coarse), float(medium), float(fine))
     if e21 == 0 and e32 == 0:
@@ -62,26 +86,27 @@ def richardson(coarse: float, medium: float, fine: float, ratio: float) -> Richa
         spread = SAFETY * (max(values) - min(values))
         kind = "oscillatory" if e32 * e21 <= 0 else "divergent"
         return Richardson(values, kind, np.nan, np.nan, spread, spread)
-    p = float(np.log(e32 / e21) / np.log(ratio))
-    gain = ratio ** min(p, P_FORMAL) - 1.0
-    return Richardson(values, "monotonic", p, fine + (fine - medium) / (ratio**p - 1.0),
-                      SAFETY * abs(e21) / gain, SAFETY * abs(e32) / gain)
+    p = observed_order(e32, e21, (r32, r21))
+    q = min(p, P_FORMAL)
+    return Richardson(values, "monotonic", p, fine + (fine - medium) / (r21**p - 1.0),
+                      SAFETY * abs(e21) / (r21**q - 1.0), SAFETY * abs(e32) / (r32**q - 1.0))
 
 
-def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: float,
+def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: float | tuple[float, float],
               order: Richardson | None = None, level: str = "fine") -> tuple[np.ndarray, Richardson]:
     """Per-point error band (k,) in mm of the fine field (or, with level="medium", of the medium one),
     from one observed order for the whole field.
 
     coarse, medium, fine: (k, 3) displacements at the same reference points. The order is `order`'s
     if given (one order for every region of a case keeps their bands consistent), else that of the
-    field's mean |u|. Monotonic: GCI_fine = Fs |u1 - u2| / (r^q - 1), GCI_medium = Fs |u2 - u3| / (r^q - 1)
+    field's mean |u|. Monotonic: GCI_fine = Fs |u1 - u2| / (r21^q - 1), GCI_medium = Fs |u2 - u3| / (r32^q - 1)
     (Roache). Otherwise the band of either level is Fs times the larger pointwise change.
     """
     mean = order or richardson(*(np.linalg.norm(u, axis=1).mean() for u in (coarse, medium, fine)), ratio)
     if mean.kind == "monotonic":
-        a, b = (fine, medium) if level == "fine" else (medium, coarse)
-        return SAFETY * np.linalg.norm(a - b, axis=1) / (ratio ** min(mean.order, P_FORMAL) - 1.0), mean
+        r32, r21 = _ratios(ratio)
+        a, b, r = (fine, medium, r21) if level == "fine" else (medium, coarse, r32)
+        return SAFETY * np.linalg.norm(a - b, axis=1) / (r ** min(mean.order, P_FORMAL) - 1.0), mean
     spread = np.maximum(np.linalg.norm(fine - medium, axis=1), np.linalg.norm(medium - coarse, axis=1))
     return SAFETY * spread, mean
 
@@ -199,6 +224,13 @@ def _row(r: Richardson) -> dict:
             "gci_fine_mm": r.gci_fine, "gci_medium_mm": r.gci_medium}
 
 
+def _medium_bound(medium: np.ndarray, fine: np.ndarray, fine_band: np.ndarray) -> np.ndarray:
+    """Per point (k,): how far the medium level can be from the converged value, |u2 - u1| + GCI_fine
+    (the triangle inequality through the fine level; it uses the finest solution, so it is tighter
+    than Roache's GCI_medium, which rests on the coarse level)."""
+    return np.linalg.norm(medium - fine, axis=1) + fine_band
+
+
 def _summary(x: np.ndarray) -> dict:
     return {"max": float(x.max()), "p95": float(np.percentile(x, 95)), "mean": float(x.mean())} if len(x) else {}
 
@@ -206,11 +238,13 @@ def _summary(x: np.ndarray) -> dict:
 def analyse(raw: dict) -> dict:
     """GCI of every quantity of every case from the three finest levels of `run_study`'s result."""
     coarse, medium, fine = raw["levels"][-3:]
-    ratio = coarse["scale"] / medium["scale"]
-    if not np.isclose(medium["scale"] / fine["scale"], ratio, rtol=1e-6) or ratio < 1.3 - 1e-9:
-        raise ValueError(f"levels {coarse['scale']}, {medium['scale']}, {fine['scale']}: need one ratio >= 1.3")
+    ratio = (coarse["scale"] / medium["scale"], medium["scale"] / fine["scale"])  # (r32, r21)
+    if min(ratio) < MIN_RATIO - 1e-9 or max(ratio) > 1.01 * min(ratio):
+        raise ValueError(f"levels {coarse['scale']}, {medium['scale']}, {fine['scale']}: need size ratios "
+                         f">= {MIN_RATIO} and within 1 % of each other, got {ratio[0]:.4f} and {ratio[1]:.4f}")
     near = np.linalg.norm(raw["probes"]["prostate_surface"] - raw["tip_mm"], axis=1) < NEAR_TIP_MM
-    out = {"ratio": ratio, "levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} for lv in (coarse, medium, fine)],
+    out = {"ratio": ratio[1], "ratios": list(ratio),
+           "levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} for lv in (coarse, medium, fine)],
            "cases": {}}
     for case in fine["cases"]:
         u3, u2, u1 = (lv["cases"][case] for lv in (coarse, medium, fine))
@@ -219,13 +253,15 @@ def analyse(raw: dict) -> dict:
         nodes_band, order = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio)
         nodes_medium, _ = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio, order, level="medium")
         row["all_nodes"] = {"n_points": len(nodes_band), "mean_order": order.order, "mean_kind": order.kind,
-                            "gci_mm": _summary(nodes_band), "gci_medium_mm": _summary(nodes_medium)}
+                            "gci_mm": _summary(nodes_band), "gci_medium_mm": _summary(nodes_medium),
+                            "bound_medium_mm": _summary(_medium_bound(u2["nodes"], u1["nodes"], nodes_band))}
         for group in ("markers", "interior"):
             mags = [np.linalg.norm(u[group], axis=1) for u in (u3, u2, u1)]
             band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order)
             medium_band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order, level="medium")
-            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g), "gci_vector_medium_mm": float(h)}
-                          for a, b, c, g, h in zip(*mags, band, medium_band)]
+            bound = _medium_bound(u2[group], u1[group], band)
+            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g), "gci_vector_medium_mm": float(h),
+                           "bound_medium_mm": float(k)} for a, b, c, g, h, k in zip(*mags, band, medium_band, bound)]
         for zone, mask in (("near_tip", near), ("rest", ~near)):
             s3, s2, s1 = (u["prostate_surface"][mask] for u in (u3, u2, u1))
             mags = [np.linalg.norm(u, axis=1) for u in (s3, s2, s1)]
@@ -234,6 +270,7 @@ def analyse(raw: dict) -> dict:
             row[f"surface_{zone}"] = {
                 "n_points": int(mask.sum()), "gci_mm": _summary(band), "gci_medium_mm": _summary(medium_band),
                 "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
+                "bound_medium_mm": _summary(_medium_bound(s2, s1, band)),
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
         out["cases"][case] = row

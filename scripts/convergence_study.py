@@ -51,31 +51,35 @@ def markdown(result: dict, command: str, seconds: float, image: str = "convergen
     lv = result["levels"]
     lines = ["# Grid convergence at the prostate", "",
              f"Written by `{command}` ({seconds / 60:.0f} min of solving, summed over the levels).", "",
-             "Levels (every mesh size scaled together, ratio r = "
-             f"{result['ratio']:.2f}): " + ", ".join(f"{x['n_tets']:,} tets (sizes x {x['scale']:g})" for x in lv) + ".",
-             "Values are |u| in mm, coarse / medium / fine; p is the observed order; the estimate is "
-             "Richardson's; GCI is the fine mesh's error band (Fs = 1.25), in mm. \"gci vector\" is the band of "
-             "the displacement vector at that point: Fs |u_fine - u_medium| / (r^q - 1) with one order per case, that of "
-             "the mean |u| over every node (its kind is on the \"every node\" row); where that mean does not converge "
-             "monotonically, Fs times the larger change between levels.", ""]
-    head = "| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector |\n|---|---|---|---|---|---|---|"
+             "Levels (every mesh size scaled together, ratios r32 = {:.4f}, r21 = {:.4f}): ".format(*result["ratios"])
+             + ", ".join(f"{x['n_tets']:,} tets (sizes x {x['scale']:g})" for x in lv) + ".",
+             "Values are |u| in mm, coarse / medium / fine; p is the observed order (Celik's fixed point where "
+             "r32 != r21); the estimate is Richardson's; GCI is the fine mesh's error band (Fs = 1.25), in mm. "
+             "\"GCI vector\" is the band of the displacement vector at that point: Fs |u_fine - u_medium| / (r21^q - 1) "
+             "with one order per case, that of the mean |u| over every node (its kind is on the \"every node\" row); "
+             "where that mean does not converge monotonically, Fs times the larger change between levels. "
+             "\"Medium bound\" is how far the medium mesh can be from the converged value: |u_medium - u_fine| + "
+             "the fine GCI vector, point by point.", ""]
+    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound |\n"
+            "|---|---|---|---|---|---|---|---|")
     for case, row in result["cases"].items():
         lines += [f"## {case}", "", "Solve time per level: " + ", ".join(f"{s / 60:.1f} min" for s in row["seconds"]), "", head]
         for i, r in enumerate(row["markers"]):
-            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} |")
+            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} |")
         for name, r in zip(("prostate centroid", "5 mm in front of the tip", "10 mm in front of the tip"), row["interior"]):
-            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} |")
+            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} |")
         for zone in ("near_tip", "rest"):
             z = row[f"surface_{zone}"]
             label = f"surface < {NEAR_TIP_MM:g} mm from the tip" if zone == "near_tip" else "surface, the rest"
             for stat in ("max", "p95", "mean"):
-                lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | |")
-            g = z["gci_mm"]
+                lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | | |")
+            g, b = z["gci_mm"], z["bound_medium_mm"]
             lines.append(f"| {label}: pointwise band ({z['n_points']} points) | max {g['max']:.3f}, p95 {g['p95']:.3f}, "
-                         f"mean {g['mean']:.3f} | | | | | |")
-        g = row["all_nodes"]["gci_mm"]
+                         f"mean {g['mean']:.3f} | | | | | | max {b['max']:.3f}, p95 {b['p95']:.3f} |")
+        g, b = row["all_nodes"]["gci_mm"], row["all_nodes"]["bound_medium_mm"]
         lines.append(f"| every node: pointwise band ({row['all_nodes']['n_points']} points) | max {g['max']:.3f}, "
-                     f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {row['all_nodes']['mean_kind']} | | | | |")
+                     f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {row['all_nodes']['mean_kind']} | | | | | "
+                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} |")
         lines.append("")
     lines += [f"![convergence]({image})", ""]
     return "\n".join(lines)
@@ -129,10 +133,12 @@ def main() -> int:
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():
-        m = max(r["gci_vector_mm"] for r in row["markers"])
-        near, rest = row["surface_near_tip"]["gci_mm"], row["surface_rest"]["gci_mm"]
-        print(f"{case}: markers GCI max {m:.3f} mm; prostate surface band near tip max {near['max']:.3f} mm, "
-              f"rest max {rest['max']:.3f} mm, mean {rest['mean']:.3f} mm")
+        for level, key in (("fine", "gci"), ("medium", "bound_medium")):
+            m = max(r[f"{key}_vector_mm" if key == "gci" else f"{key}_mm"] for r in row["markers"])
+            i = max(r[f"{key}_vector_mm" if key == "gci" else f"{key}_mm"] for r in row["interior"])
+            near, rest = row["surface_near_tip"][f"{key}_mm"], row["surface_rest"][f"{key}_mm"]
+            print(f"{case}, {level} level: markers max {m:.3f} mm, interior max {i:.3f} mm; prostate surface near tip "
+                  f"max {near['max']:.3f} mm, rest max {rest['max']:.3f} mm, mean {rest['mean']:.3f} mm")
     print(f"wrote {args.docs / (name + '.md')} ({time.perf_counter() - t0:.0f} s this run)")
     return 0
 

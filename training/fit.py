@@ -111,7 +111,8 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
     """Per-region GCI band (mm) of the FE on `mesh`, max over the hard cases of a convergence study
     (scripts/convergence_study.py's JSON), and a sentence saying what it is measured against.
 
-    `mesh` must be the study's finest level (its GCI_fine) or the one before it (GCI_medium)."""
+    `mesh` must be the study's finest level (its GCI band) or the one before it (its distance to the
+    finest plus that band: tradeoff.gci_bands)."""
     import json
 
     study = json.loads(Path(path).read_text())["analysis"]
@@ -123,9 +124,11 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
                          f"{path}'s two finest levels ({sizes}): not a mesh of that study")
     bands = gci_bands(study, which[0])
     levels = ", ".join(f"{lv['n_tets']:,}" for lv in study["levels"])
-    text = (f"FE discretisation: grid convergence index (Fs 1.25) of this mesh, the study's {which[0]} level, against "
-            f"the Richardson estimate from 3 meshes ({levels} tets, size ratio {study['ratio']:.2f}), max over the "
-            f"cases {', '.join(study['cases'])}")
+    how = ("grid convergence index (Fs 1.25) of this mesh, the study's fine level," if which[0] == "fine" else
+           "this mesh (the study's medium level): its distance to the fine level plus that level's grid convergence "
+           "index (Fs 1.25),")
+    text = (f"FE discretisation: {how} against the Richardson estimate from 3 meshes ({levels} tets, size ratio "
+            f"{study['ratio']:.2f}), max over the cases {', '.join(study['cases'])}")
     return bands, text
 
 

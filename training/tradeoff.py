@@ -51,13 +51,14 @@ class LevelFe:
 
 
 def gci_bands(analysis: dict, level: str = "fine") -> dict[str, float]:
-    """The finest (or, level="medium", the second-finest) level's GCI band (mm) per region, max over
-    the cases of `analyse`'s result."""
-    sfx = "" if level == "fine" else "_medium"
+    """How far the finest level (or, level="medium", the second-finest) is from the converged estimate,
+    per region (mm), max over the cases of `analyse`'s result: the finest level's GCI band; for the
+    medium level, pointwise its distance to the finest plus that band (convergence._medium_bound)."""
+    key = {"fine": ("gci_vector_mm", "gci_mm"), "medium": ("bound_medium_mm", "bound_medium_mm")}[level]
     rows = analysis["cases"].values()
-    return {"markers": max(max(r[f"gci_vector{sfx}_mm"] for r in row["markers"]) for row in rows),
-            "prostate_surface": max(row[f"surface_{z}"][f"gci{sfx}_mm"]["max"] for row in rows for z in ("near_tip", "rest")),
-            "all_nodes": max(row["all_nodes"][f"gci{sfx}_mm"]["max"] for row in rows)}
+    return {"markers": max(max(r[key[0]] for r in row["markers"]) for row in rows),
+            "prostate_surface": max(row[f"surface_{z}"][key[1]]["max"] for row in rows for z in ("near_tip", "rest")),
+            "all_nodes": max(row["all_nodes"][key[1]]["max"] for row in rows)}
 
 
 def _full_push_seconds(level: dict) -> float:
@@ -77,12 +78,6 @@ def _marker_error(level: dict, finest: dict, analysis: dict) -> float:
     return worst
 
 
-def _surface_medium_error(analysis: dict) -> float:
-    """Second-finest level at the prostate surface: largest change to the finest + largest band, per zone and case."""
-    return max(row[f"surface_{z}"]["change_fine_medium_mm"]["max"] + row[f"surface_{z}"]["gci_mm"]["max"]
-               for row in analysis["cases"].values() for z in ("near_tip", "rest"))
-
-
 def level_errors(study: dict) -> list[LevelFe]:
     """e_FE per region for every level of a convergence study's JSON (coarsest first)."""
     analysis = study["analysis"]
@@ -94,10 +89,10 @@ def level_errors(study: dict) -> list[LevelFe]:
         this = (lv["n_tets"], lv["n_nodes"])
         if this == key[-1]:
             fe = dict(bands)
+        elif this == key[-2]:
+            fe = gci_bands(analysis, "medium")
         else:
             fe = {"markers": _marker_error(lv, finest, analysis)}
-            if this == key[-2]:
-                fe["prostate_surface"] = _surface_medium_error(analysis)
         out.append(LevelFe(float(lv["scale"]), int(lv["n_tets"]), int(lv["n_nodes"]), fe, _full_push_seconds(lv)))
     return out
 

@@ -19,6 +19,20 @@ def test_richardson_recovers_order_and_limit_of_an_exact_power_law(order):
     assert out.gci_medium == pytest.approx(SAFETY * abs(f2 - f0), rel=1e-10)
 
 
+@pytest.mark.parametrize("order", [1.0, 2.0, 3.0])
+def test_unequal_ratios_recover_order_and_limit(order):
+    """h = r32 r21, r21, 1 with r32 != r21 (a level at sizes x 0.769 after 1.3, 1): Celik's fixed point gives p exactly."""
+    f0, c, r32, r21 = 4.0, -0.3, 1.3, 1 / 0.769
+    f3, f2, f1 = (f0 + c * h**order for h in (r32 * r21, r21, 1.0))
+    out = richardson(f3, f2, f1, (r32, r21))
+    assert out.kind == "monotonic" and out.order == pytest.approx(order, rel=1e-9)
+    assert out.extrapolated == pytest.approx(f0, rel=1e-12)
+    q = min(order, P_FORMAL)
+    assert out.gci_fine == pytest.approx(SAFETY * abs(f2 - f1) / (r21**q - 1), rel=1e-9)
+    assert out.gci_medium == pytest.approx(SAFETY * abs(f3 - f2) / (r32**q - 1), rel=1e-9)
+    assert richardson(f3, f2, f1, (r32, r21)).order != pytest.approx(richardson(f3, f2, f1, r32).order, rel=1e-6)
+
+
 def test_an_order_above_the_schemes_is_capped_in_the_band_not_in_the_estimate():
     f0, r = 2.0, 1.3
     f3, f2, f1 = (f0 + 0.5 * h**4 for h in (r**2, r, 1.0))

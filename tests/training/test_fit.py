@@ -154,15 +154,17 @@ def test_cli_writes_the_model_its_flags_ask_for_and_prints_its_metrics(tiny_swee
 
 
 def test_fe_band_is_the_studys_band_of_the_model_mesh_level(tmp_path):
-    """--fe-error picks GCI_fine for the finest level, GCI_medium for the one before, and refuses any other mesh."""
+    """--fe-error picks the GCI band for the finest level, the distance to the finest plus that band for the
+    one before, and refuses any other mesh."""
     from types import SimpleNamespace
 
     from training.fit import fe_discretisation
 
     def zone(fine, medium):
-        return {"gci_mm": {"max": fine}, "gci_medium_mm": {"max": medium}}
+        return {"gci_mm": {"max": fine}, "gci_medium_mm": {"max": 9.0}, "bound_medium_mm": {"max": medium}}
 
-    case = {"markers": [{"gci_vector_mm": 0.1, "gci_vector_medium_mm": 0.3}, {"gci_vector_mm": 0.05, "gci_vector_medium_mm": 0.4}],
+    case = {"markers": [{"gci_vector_mm": 0.1, "gci_vector_medium_mm": 9.0, "bound_medium_mm": 0.3},
+                        {"gci_vector_mm": 0.05, "gci_vector_medium_mm": 9.0, "bound_medium_mm": 0.4}],
             "surface_near_tip": zone(0.7, 1.5), "surface_rest": zone(0.2, 0.6), "all_nodes": zone(0.9, 2.0)}
     levels = [{"n_tets": n, "n_nodes": 2 * n} for n in (100, 200, 400)]
     study = tmp_path / "study.json"

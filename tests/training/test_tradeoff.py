@@ -18,16 +18,20 @@ def _level(scale, n_tets, offset, seconds):
 
 
 def _surface(change, band):
-    return {"gci_mm": {"max": band, "p95": band / 2, "mean": band / 4}, "change_fine_medium_mm": {"max": change}}
+    return {"gci_mm": {"max": band, "p95": band / 2, "mean": band / 4}, "change_fine_medium_mm": {"max": change},
+            "bound_medium_mm": {"max": change + band}}
 
 
 def study():
     """Four levels, the three finest analysed (like a study resumed with a finer level)."""
     levels = [_level(2.0, 100, 0.9, (10.0, 4.0)), _level(1.69, 200, 0.5, (20.0, 8.0)),
               _level(1.3, 400, 0.2, (40.0, 16.0)), _level(1.0, 800, 0.0, (60.0, 40.0))]
-    cases = {case: {"markers": [{"gci_vector_mm": 0.01 * (c + 1)}, {"gci_vector_mm": 0.05}],
+    # the second-finest level (1.3) is 0.2 mm from the finest at every marker: its bound is that plus the band
+    cases = {case: {"markers": [{"gci_vector_mm": 0.01 * (c + 1), "bound_medium_mm": 0.2 + 0.01 * (c + 1)},
+                                {"gci_vector_mm": 0.05, "bound_medium_mm": 0.25}],
                     "surface_near_tip": _surface(1.0 + c, 0.7), "surface_rest": _surface(0.3, 0.2 + c),
-                    "all_nodes": {"gci_mm": {"max": 2.0 + c}}} for c, case in enumerate(CASES)}
+                    "all_nodes": {"gci_mm": {"max": 2.0 + c}, "bound_medium_mm": {"max": 2.5 + c}}}
+             for c, case in enumerate(CASES)}
     return {"levels": levels, "analysis": {"ratio": 1.3, "levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")}
                                                                     for lv in levels[1:]], "cases": cases}}
 
@@ -46,12 +50,14 @@ def test_coarser_level_is_distance_plus_the_finest_band():
     assert errs[2].fe_mm["markers"] == pytest.approx(0.25)
 
 
-def test_surface_only_where_the_study_stores_it():
-    """Surface: second finest = change + band (case 1 near the tip: 2.0 + 0.7; at the rest 0.3 + 1.2); every node: finest only."""
+def test_surface_and_nodes_only_where_the_study_stores_them():
+    """Second finest = the analysis's pointwise bound, distance + band (surface, case 1 near the tip: 2.0 + 0.7;
+    every node 2.5 + 1); the coarser levels have markers only."""
     errs = level_errors(study())
-    assert [sorted(e.fe_mm) for e in errs] == [["markers"], ["markers"], ["markers", "prostate_surface"],
+    assert [sorted(e.fe_mm) for e in errs] == [["markers"], ["markers"], ["all_nodes", "markers", "prostate_surface"],
                                                ["all_nodes", "markers", "prostate_surface"]]
-    assert errs[2].fe_mm["prostate_surface"] == pytest.approx(2.7)
+    assert errs[2].fe_mm == pytest.approx({"markers": 0.25, "prostate_surface": 2.7, "all_nodes": 3.5})
+    assert errs[2].fe_mm == pytest.approx(gci_bands(study()["analysis"], "medium"))
 
 
 def test_path_seconds_is_the_full_push_mean():
