@@ -14,9 +14,15 @@ from fem_offline.scene import load_scene
 SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offline" / "scenes"
 
 
+# CGAL sizes its tets by the scene's mesh sizes, TetGen by the voxels (labelmesh.py): the 1 mm map gives
+# TetGen 86,509 tets and the build 8.5 min on a loaded 2-core machine; at 2 mm it gives 18,577 tets,
+# about CGAL's 19,642 at 1 mm. The first mesher installed builds.
+VOXEL_MM = {"cgal": 1.0, "tetgen": 2.0}
+
+
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    """The tiny phantom voxelised at 1 mm, a linear 3 x 4 sweep, 2 off-grid cases: the whole build."""
+    """The tiny phantom voxelised (1 mm, or 2 mm for TetGen), a linear 3 x 4 sweep, 2 off-grid cases: the whole build."""
     mesher = next((m for m, package in (("cgal", "pygalmesh"), ("tetgen", "tetgen")) if importlib.util.find_spec(package)), None)
     if mesher is None:
         pytest.skip("label-map meshing needs pygalmesh (`make labelmesh`) or tetgen (offline extra)")
@@ -26,7 +32,7 @@ def built(tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("build")
     tiny = load_scene(SCENES / "tiny.toml")
-    write_label_map(folder / "labels.nrrd", voxelise(tiny.phantom, 1.0))
+    write_label_map(folder / "labels.nrrd", voxelise(tiny.phantom, VOXEL_MM[mesher]))
     data = labelmap_scene(tiny, "labels.nrrd", name="patient_tiny")
     data["effects"]["geometric_nonlinearity"] = False
     data["label_map"]["mesher"] = mesher
@@ -34,15 +40,15 @@ def built(tmp_path_factory):
     lines = []
     model = build(folder / "scene.toml", folder / "models" / "patient_tiny", work=folder / "work",
                   options=BuildOptions(offgrid_cases=2, workers=1), say=lines.append)
-    return folder, model, lines
+    return folder, model, lines, VOXEL_MM[mesher]
 
 
 def test_build_writes_a_model_that_records_its_label_map(built):
-    folder, model, lines = built
+    folder, model, lines, voxel = built
     assert model.source is not None
     assert model.source.sha256 == sha256(folder / "labels.nrrd")
-    assert model.source.labels == LABELS and model.source.spacing_mm == (1.0, 1.0, 1.0)
-    assert model.source.shape == (100, 80, 90)
+    assert model.source.labels == LABELS and model.source.spacing_mm == (voxel, voxel, voxel)
+    assert model.source.shape == tuple(int(n / voxel) for n in (100, 80, 90))
     assert model.metrics.offgrid_summary.n_cases == 2
     assert lines[0].startswith("[1/3]") and "whole build" in lines[-1]
 
@@ -51,7 +57,7 @@ def test_surrogate_matches_its_own_linear_fe(built):
     """A linear sweep spans 2 modes in f = u / d (to round-off); PCA keeps those above 1e-9 of the first
     instead of the 32 asked. The network learns cos/sin beta from three angles: held-out e_NN
     measured 0.005-0.031 mm over runs (CGAL's mesh differs slightly from run to run), off the grid 0.014 mm."""
-    _, model, _ = built
+    _, model, _, _ = built
     assert model.pca.rank < 8 and model.pca.energy > 1 - 1e-12
     assert model.metrics.offgrid_summary.e_nn_mm < 0.1
     assert model.metrics.table3_summary.e_nn_mm < 0.1
@@ -63,7 +69,7 @@ def test_service_serves_it_and_reports_the_source(built):
     from service.app import create_app
     from service.settings import Settings
 
-    folder, model, _ = built
+    folder, model, _, _ = built
     with TestClient(create_app(Settings(model=folder / "models" / "patient_tiny"))) as client:
         info = client.get("/model").json()
         assert info["source"]["sha256"] == model.source.sha256 and info["source"]["labels"] == LABELS
@@ -75,7 +81,7 @@ def test_service_serves_it_and_reports_the_source(built):
 def test_rerun_resumes_without_solving_again(built):
     from pipeline.build import BuildOptions, build
 
-    folder, model, _ = built
+    folder, model, _, _ = built
     lines = []
     again = build(folder / "scene.toml", folder / "models" / "patient_tiny", work=folder / "work",
                   options=BuildOptions(offgrid_cases=2, workers=1), say=lines.append)
