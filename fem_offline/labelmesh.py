@@ -1,16 +1,18 @@
 """Label map -> one conforming tet mesh, a tissue per tet, in the image's patient coordinates (mm).
 
-    voxels --(scene's label table)--> tissue per voxel --(surface nets: smoothed interfaces)-->
-    triangles on every tissue interface --(fTetWild or TetGen)--> tets filling the image box,
-    each given the tissue its centroid lies in --> corner tets for mesh.from_vertices
+Three meshers (`label_map.mesher`), measured against each other by scripts/compare_meshers.py (README):
 
-Surface nets (VTK) put one shared, conforming triangle surface on every interface between two
-labels and smooth it: each vertex stays within `CONSTRAINT_VOXELS` of its voxel-boundary position,
-which removes the staircase. fTetWild embeds those triangles into a tet mesh sized like the
-phantom's (fine at the prostate and the guide), so every tet lies on one side of every interface
-and the tissues share nodes (bonded). Nodes within a quarter voxel of the image's box are put on
-it: a body surface there is a cut of the image, flat, and the table (z = z_min) stays one plane.
-The candidates and how they were chosen: scripts/compare_meshers.py and the README.
+- "cgal" (default): CGAL's labelled-image mesher (pygalmesh) meshes the voxel labels directly, cell
+  size per label, the guide's fine ball a label of its own, facets within half a voxel of the labels'
+  boundary. Best elements; needs a CGAL compile (`make labelmesh`).
+- "tetgen": the interfaces as surface nets, smoothed and decimated (labelsurface.py), are kept as
+  they are (-Y) in TetGen's constrained Delaunay mesh; each closed region takes the tissue of most
+  of its voxels. A wheel, so CI meshes label maps with it; it leaves slivers where four surface
+  nodes are nearly coplanar.
+- "ftetwild": fTetWild embeds the same surface with the phantom's size field; minutes per label map.
+
+Boundary nodes within a quarter voxel of the image's box are put on it: a body surface there is a
+cut of the image, flat, and the table (z = z_min) stays one plane; a tet this flattens is dropped.
 """
 
 from __future__ import annotations
@@ -26,13 +28,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .labelmap import OUTSIDE, LabelImage, read_label_map
+from .mesh_quality import signed_volumes
 from .scene import Guide, LabelMap, MeshSize, Scene
 
 log = logging.getLogger(__name__)
 
 FACET_DISTANCE_VOXELS = 0.5  # CGAL: how far a surface facet may stray from the labels' boundary
-CONSTRAINT_VOXELS = 0.75  # how far surface-nets smoothing may move a vertex from its voxel-boundary position
-SMOOTHING_ITERATIONS = 32
+TETGEN_RADIUS_EDGE = 1.5  # TetGen -q: the largest circumradius / shortest edge of a tet it refines to
+REGION_PURITY = 0.9  # a region TetGen closes off must be at least this fraction one tissue
 ENVELOPE_VOXELS = 0.1  # fTetWild's envelope: how far the tet faces may stray from the smoothed surface
 
 
@@ -85,40 +88,6 @@ def voxel_tissues(image: LabelImage, spec: LabelMap) -> VoxelTissues:
     return VoxelTissues(index, names, image)
 
 
-def surface_nets(index: np.ndarray, *, iterations: int = SMOOTHING_ITERATIONS,
-                 constraint_voxels: float = CONSTRAINT_VOXELS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Smoothed interface triangles of a tissue-index volume: vertices (n, 3) in voxel index
-    coordinates, triangles (m, 3), the two tissues each triangle separates (m, 2; OUTSIDE = -1).
-
-    The volume is padded with one layer of OUTSIDE, so the image's box is an interface too.
-    """
-    import vtk
-    from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
-
-    padded = np.pad(index.astype(np.int16) + 1, 1)  # 0 = outside, tissue t = t + 1
-    img = vtk.vtkImageData()
-    img.SetDimensions(*padded.shape)
-    img.SetOrigin(-1.0, -1.0, -1.0)  # so vertex coordinates are the unpadded voxel indices
-    img.GetPointData().SetScalars(numpy_to_vtk(padded.ravel(order="F"), deep=True))
-    nets = vtk.vtkSurfaceNets3D()
-    nets.SetInputData(img)
-    labels = np.unique(padded)
-    for k, v in enumerate(labels[labels > 0]):
-        nets.SetValue(k, int(v))
-    nets.SetBackgroundLabel(0)
-    nets.SetOutputMeshTypeToTriangles()
-    nets.SetSmoothing(iterations > 0)
-    nets.SetNumberOfIterations(iterations)
-    nets.SetConstraintStrategyToConstraintDistance()
-    nets.SetConstraintDistance(constraint_voxels)
-    nets.Update()
-    out = nets.GetOutput()
-    points = vtk_to_numpy(out.GetPoints().GetData()).astype(np.float64)
-    tris = vtk_to_numpy(out.GetPolys().GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
-    pairs = vtk_to_numpy(out.GetCellData().GetArray("BoundaryLabels")).reshape(-1, 2).astype(np.int64) - 1
-    return points, tris, pairs
-
-
 def size_mm(points_mm: np.ndarray, *, tissues: VoxelTissues, size: MeshSize, guide: Guide) -> np.ndarray:
     """Target edge length (k,) at points (k, 3): the phantom's size field (phantom._size_field), from the voxels.
 
@@ -155,20 +124,6 @@ def box_grid(lo: np.ndarray, hi: np.ndarray, step_mm: float) -> tuple[np.ndarray
     return points, tets
 
 
-def _ftetwild(vertices_mm, triangles, *, size_at, epsilon_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """fTetWild on the interface triangles, sized by size_at(points); every tet of the box is kept."""
-    import pytetwild
-
-    lo, hi = vertices_mm.min(axis=0), vertices_mm.max(axis=0)
-    bg_points, bg_tets = box_grid(lo - 1.0, hi + 1.0, 2.0)
-    diagonal = float(np.linalg.norm(hi - lo))
-    points, tets = pytetwild.tetrahedralize(
-        vertices_mm, triangles.astype(np.int32), edge_length_abs=float(size_at(bg_points).max()),
-        epsilon=epsilon_mm / diagonal, disable_filtering=True, num_threads=1, quiet=True,
-        bg_vertices=bg_points, bg_tets=bg_tets.astype(np.int32), bg_values=size_at(bg_points))
-    return np.asarray(points, dtype=np.float64), np.asarray(tets, dtype=np.int64)
-
-
 def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CGAL's labelled-image mesher (pygalmesh): points (n, 3) in voxel index coordinates, tets (m, 4), tissue (m,).
 
@@ -198,24 +153,105 @@ def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.nd
     return points, tets, (label - 1) % n
 
 
+def _interfaces(tissues: VoxelTissues, guide: Guide):
+    """The smoothed, decimated interfaces (labelsurface.Surface, scaled index coordinates); the prostate's
+    decimated least, the lumen around the guide tip (1.5 patch radii, as CGAL's guide ball) not at all."""
+    from .labelsurface import interface_surface
+
+    spacing = tissues.image.spacing_mm
+    fine = tissues.names.index("prostate") if "prostate" in tissues.names else None
+    tip = tissues.image.to_index(np.asarray(guide.tip_mm, dtype=np.float64)[None])[0] * spacing
+    return interface_surface(tissues.index, spacing, fine_label=fine, keep_ball=(tip, 1.5 * guide.patch_radius_mm))
 
 
+def _tetgen(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """TetGen (constrained Delaunay, -pYq) on the smoothed interfaces: points (n, 3) in voxel index coordinates, tets (m, 4), tissue (m,).
+
+    The interface triangles are kept as they are (-Y), so the tissues are bonded along them; each
+    closed region TetGen finds (-A) takes the tissue most of its volume's voxels hold. The size is
+    set by the surface (about a voxel where it curves, decimated where flat) and grows inward
+    by the radius-edge bound; `size` and `guide` are not used (TetGen's background-mesh sizing
+    crashed on these inputs).
+    """
+    import tetgen
+
+    surface = _interfaces(tissues, guide)
+    spacing = tissues.image.spacing_mm
+    points, tets, region, _ = tetgen.TetGen(surface.vertices, surface.triangles.astype(np.int32)).tetrahedralize(
+        switches=f"pYq{TETGEN_RADIUS_EDGE}AQ")
+    points, tets = points / spacing, np.asarray(tets, dtype=np.int64)  # back to voxel index coordinates
+    return points, tets, _tissue_by_region(points, tets, np.asarray(region).ravel(), tissues)
 
 
+def _tissue_by_region(points: np.ndarray, tets: np.ndarray, region: np.ndarray, tissues: VoxelTissues) -> np.ndarray:
+    """Tissue (m,) of each tet: the tissue of most of its region's volume by the voxel at each tet's centroid; OUTSIDE regions are dropped later."""
+    ids, region = np.unique(region, return_inverse=True)
+    shape = np.array(tissues.index.shape)
+    voxel = np.clip(np.rint(points[tets].mean(axis=1)).astype(int), 0, shape - 1)
+    label = tissues.index[tuple(voxel.T)] + 1  # 0 = OUTSIDE
+    votes = np.zeros((len(ids), len(tissues.names) + 1))
+    np.add.at(votes, (region, label), np.abs(signed_volumes(points, tets)))
+    purity = votes.max(axis=1) / votes.sum(axis=1)
+    if purity.min() < REGION_PURITY:
+        raise ValueError(f"label_map: a meshed region is only {purity.min():.0%} one tissue; its interfaces leak")
+    return (votes.argmax(axis=1) - 1)[region]
 
 
+def _ftetwild(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """fTetWild on the smoothed interfaces, sized like the phantom: points (n, 3) in voxel index coordinates, tets (m, 4), tissue (m,) by centroid voxel."""
+    import pytetwild
+
+    image = tissues.image
+    spacing = image.spacing_mm
+    surface = _interfaces(tissues, guide)
+    vertices_mm = image.to_physical(surface.vertices / spacing)
+    size_at = lambda p: size_mm(p, tissues=tissues, size=size, guide=guide)  # noqa: E731
+    lo, hi = vertices_mm.min(axis=0), vertices_mm.max(axis=0)
+    bg_points, bg_tets = box_grid(lo - 1.0, hi + 1.0, 2.0)
+    diagonal = float(np.linalg.norm(hi - lo))
+    points, tets = pytetwild.tetrahedralize(
+        vertices_mm, surface.triangles.astype(np.int32), edge_length_abs=float(size_at(bg_points).max()),
+        epsilon=ENVELOPE_VOXELS * float(spacing.min()) / diagonal, disable_filtering=True, num_threads=1, quiet=True,
+        bg_vertices=bg_points, bg_tets=bg_tets.astype(np.int32), bg_values=size_at(bg_points))
+    points = image.to_index(np.asarray(points, dtype=np.float64))
+    tets = np.asarray(tets, dtype=np.int64)
+    shape = np.array(tissues.index.shape)
+    voxel = np.clip(np.rint(points[tets].mean(axis=1)).astype(int), 0, shape - 1)
+    return points, tets, tissues.index[tuple(voxel.T)].astype(np.int64)
 
 
+def snap_to_box(points_index: np.ndarray, tets: np.ndarray, shape, tol_voxels: float = 0.25) -> np.ndarray:
+    """Put the mesh's boundary nodes within tol_voxels of the image box (voxel index coordinates) exactly on its faces.
 
-def snap_to_box(points_index: np.ndarray, shape, tol_voxels: float = 0.25) -> np.ndarray:
-    """Put points within tol_voxels of the image box (voxel index coordinates) exactly on its faces."""
+    Interior nodes stay: one near the box (a TetGen Steiner point) would flatten its tets.
+    """
+    from contracts.tet10 import FACES
+
+    faces = np.sort(tets[:, FACES].reshape(-1, 3), axis=1)
+    unique, count = np.unique(faces, axis=0, return_counts=True)
+    boundary = np.zeros(len(points_index), dtype=bool)
+    boundary[unique[count == 1]] = True
     lo, hi = np.full(3, -0.5), np.asarray(shape, dtype=np.float64) - 0.5
     p = points_index.copy()
-    p = np.where(np.abs(p - lo) < tol_voxels, lo, p)
-    return np.where(np.abs(p - hi) < tol_voxels, hi, p)
+    p = np.where(boundary[:, None] & (np.abs(p - lo) < tol_voxels), lo, p)
+    return np.where(boundary[:, None] & (np.abs(p - hi) < tol_voxels), hi, p)
 
 
-MESHERS = {"cgal": _cgal}
+def flat_on_box(points_index: np.ndarray, tets: np.ndarray, shape) -> np.ndarray:
+    """Mask (m,) of the tets whose four corners lie in one face of the image box: no volume once snapped.
+
+    A mesher that approximates the box's faces within a tolerance leaves thin tets on them, all four
+    corners within a quarter voxel of the face (CGAL at 0.5 mm voxels: one of 44,807). Snapping puts
+    them in the plane; dropping them leaves their two inner faces as the box face, which they now are.
+    """
+    lo, hi = np.full(3, -0.5), np.asarray(shape, dtype=np.float64) - 0.5
+    corners = points_index[tets[:, :4]]  # (m, 4, 3)
+    return ((corners == lo).all(axis=1) | (corners == hi).all(axis=1)).any(axis=1)
+
+
+MESHERS = {"cgal": _cgal, "tetgen": _tetgen, "ftetwild": _ftetwild}
+PACKAGE_HINT = {"cgal": "`make labelmesh` builds pygalmesh against CGAL; or label_map.mesher = \"tetgen\"",
+                "tetgen": "the offline extra installs tetgen and vtk", "ftetwild": "the ftetwild extra"}
 
 
 def mesh_label_map(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...]]:
@@ -223,12 +259,18 @@ def mesh_label_map(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tu
     spec = scene.label_map
     image = read_label_map(spec.path)
     tissues = voxel_tissues(image, spec)
-    if spec.mesher not in MESHERS:
-        raise ValueError(f"label_map.mesher: {spec.mesher!r} is measured by scripts/compare_meshers.py "
-                         f"but not built in; use one of {sorted(MESHERS)}")
     t0 = time.perf_counter()
-    points, tets, tissue = MESHERS[spec.mesher](tissues, size=scene.mesh, guide=scene.guide)
-    points = image.to_physical(snap_to_box(points, image.labels.shape))
+    try:
+        points, tets, tissue = MESHERS[spec.mesher](tissues, size=scene.mesh, guide=scene.guide)
+    except ModuleNotFoundError as exc:
+        raise ValueError(f"label_map.mesher: {spec.mesher!r} needs the package {exc.name!r} "
+                         f"({PACKAGE_HINT.get(spec.mesher, 'pip install it')})") from None
+    snapped = snap_to_box(points, tets, image.labels.shape)
+    keep = (tissue >= 0) & ~flat_on_box(snapped, tets, image.labels.shape)  # OUTSIDE: a closed-off lumen or cavity
+    flipped = np.sign(signed_volumes(snapped, tets[keep])) != np.sign(signed_volumes(points, tets[keep]))
+    if flipped.any():
+        raise ValueError(f"label_map: putting the nodes on the image box would flatten or invert {flipped.sum()} tets")
+    points, tets, tissue = image.to_physical(snapped), tets[keep], tissue[keep]
     log.info("label map %s: %d tets, %d vertices by %s in %.1f s", spec.path.name, len(tets), len(points),
              spec.mesher, time.perf_counter() - t0)
     return points, tets, tissue, tissues.names

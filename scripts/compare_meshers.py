@@ -1,0 +1,75 @@
+"""Label-map meshers on the voxelised phantom: tets, time, validity, quality, tissue volumes, conformity, linear FE.
+
+    python scripts/compare_meshers.py --scene fem_offline/scenes/default.toml --spacing-mm 1 0.5 \
+        [--meshers cgal tetgen] [--ftetwild] [--out docs/meshers.json]
+
+Each label map is the phantom voxelised as scripts/make_labelmap.py does (written under --work);
+volumes are against the exact phantom (voxel centres at 0.25 mm), markers against the gmsh phantom
+mesh's linear answer at its 8 markers (10 mm, beta = 0, guide glued), next to how much that answer
+moves when the gmsh mesh is refined by 1.3. A mesher whose package is missing is skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import logging
+import sys
+from pathlib import Path
+
+from fem_offline.mesher_study import study
+from fem_offline.scene import load_scene
+
+PACKAGE = {"cgal": "pygalmesh", "tetgen": "tetgen", "ftetwild": "pytetwild"}
+TISSUES = ("prostate", "rectal_wall", "bladder", "pubic_bone", "spine", "adipose")
+
+
+def table(result: dict) -> str:
+    head = ("| voxel | mesher | tets | time | inverted | degenerate | min dihedral | "
+            + " | ".join(t.replace("_", " ") for t in TISSUES)
+            + " | 3-owner faces | prostate surface to voxels, max / mean | linear solve | max marker diff |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in result["rows"]:
+        vol = " | ".join(f"{100 * r['volume_error'][t]:+.1f} %" for t in TISSUES)
+        diff = f"{r['marker_difference_max_mm']:.3f} mm" if "marker_difference_max_mm" in r else "-"
+        solve = r["linear_solve"].split(":")[0]  # runs, fails, not run
+        d = r["prostate_surface_to_voxels"]
+        lines.append(f"| {r['spacing_mm']:g} mm | {r['mesher']} | {r['tets']:,} | {r['seconds']:.1f} s | {r['inverted']} | "
+                     f"{r['degenerate']} | {r['min_dihedral_deg']:.1f}° | {vol} | {r['faces_with_three_owners']} | "
+                     f"{d['max_mm']:.2f} / {d['mean_mm']:.2f} mm ({d['max_voxels']:.2f} / {d['mean_voxels']:.2f} voxel) | "
+                     f"{solve} | {diff} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"), help="a phantom scene")
+    ap.add_argument("--spacing-mm", type=float, nargs="+", default=[1.0])
+    ap.add_argument("--meshers", nargs="+", choices=("cgal", "tetgen"), default=["cgal", "tetgen"])
+    ap.add_argument("--ftetwild", action="store_true", help="also fTetWild (minutes per label map)")
+    ap.add_argument("--work", type=Path, default=Path("runs/meshers"), help="folder for the label maps")
+    ap.add_argument("--out", type=Path, default=Path("docs/meshers.json"))
+    ap.add_argument("--max-solve-tets", type=int, default=150_000, help="no linear solve on a larger mesh")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    meshers = args.meshers + (["ftetwild"] if args.ftetwild else [])
+    missing = [m for m in meshers if importlib.util.find_spec(PACKAGE[m]) is None]
+    for m in missing:
+        print(f"skipping {m}: {PACKAGE[m]} is not installed", file=sys.stderr)
+    scene = load_scene(args.scene)
+    if scene.phantom is None:
+        print(f"error: {args.scene} is not a phantom scene", file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write = lambda result: args.out.write_text(json.dumps(result, indent=1) + "\n")  # noqa: E731 -- after every row
+    result = study(scene, spacings_mm=args.spacing_mm, meshers=[m for m in meshers if m not in missing], folder=args.work,
+                   max_solve_tets=args.max_solve_tets, on_row=write)
+    print(table(result))
+    print(f"gmsh phantom, |u| at its 8 markers: {', '.join(f'{u:.3f}' for u in result['phantom_marker_u_mm'])} mm; "
+          f"change when every size / 1.3: max {max(result['phantom_refined_marker_difference_mm']):.3f} mm; {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
