@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"), help="a phantom scene")
     ap.add_argument("--spacing-mm", type=float, nargs="+", default=[1.0])
-    ap.add_argument("--meshers", nargs="+", choices=("cgal", "tetgen"), default=["cgal", "tetgen"])
+    ap.add_argument("--meshers", nargs="+", choices=("cgal", "tetgen", "ftetwild"), default=["cgal", "tetgen"])
     ap.add_argument("--ftetwild", action="store_true", help="also fTetWild (minutes per label map)")
     ap.add_argument("--work", type=Path, default=Path("runs/meshers"), help="folder for the label maps")
     ap.add_argument("--out", type=Path, default=Path("docs/meshers.json"))
