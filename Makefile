@@ -99,7 +99,7 @@ linear-validity: $(STAMP)
 default-model: $(STAMP)
 	$(PY) -m fem_offline sweep --scene fem_offline/scenes/default.toml --out $(RUNS)
 	$(PY) -m fem_offline cases --scene fem_offline/scenes/default.toml --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 8 --seed 0
-	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 120 --offgrid $(RUNS)/offgrid \
+	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 160 --offgrid $(RUNS)/offgrid \
 	    --fe-error docs/convergence_contact.json
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.

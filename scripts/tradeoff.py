@@ -46,8 +46,8 @@ from training.tradeoff import (decode_seconds, end_to_end, level_errors, makespa
                                shaped_graph, solved_path_seconds, sweep_estimate)
 
 RANKS = (8, 16, 24, 32, 40, 48, 64)
-NETWORKS = ((30, 1), (60, 1), (120, 1), (60, 2))  # (width, depth)
-DEFAULT = (64, 120, 1)  # models/default: rank, width, depth
+NETWORKS = ((30, 1), (60, 1), (120, 1), (160, 1), (60, 2))  # (width, depth)
+DEFAULT = (64, 160, 1)  # models/default: rank, width, depth
 WORKERS = 2  # the sweep's default process count, as the measured sweep ran
 MESH_CHECK_SCALES = (1.69, 1.0)
 MESH_CHECK_RANKS = (8, 16, 24)
@@ -158,7 +158,7 @@ def figure(pts, levels, build, out: Path) -> None:
 
     fig, axes = plt.subplots(1, 3, figsize=(17, 5.5))
     colours = dict(zip(sorted({p["scale"] for p in pts}, reverse=True), ("tab:red", "tab:orange", "tab:blue", "tab:green")))
-    shapes = dict(zip([f"{d}x{w}" for w, d in NETWORKS], "osD^"))
+    shapes = dict(zip([f"{d}x{w}" for w, d in NETWORKS], "osDv^"))
     tets = {lv.scale: lv.n_tets for lv in levels}
     for ax, region in zip(axes[:2], SHOWN):
         sub = [p for p in pts if region in p["e2e_mm"]]
