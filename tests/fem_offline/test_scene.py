@@ -1,5 +1,6 @@
 """Scene files: defaults from the paper, and errors that name the bad field."""
 
+import numpy as np
 import pytest
 
 from fem_offline.scene import SceneError, load_scene, parse_scene
@@ -86,3 +87,18 @@ def test_extends_errors_name_the_file(tmp_path):
     (tmp_path / "d.toml").write_text("extends = 3\n")
     with pytest.raises(SceneError, match=r"d.toml: extends: expected the file name of a scene"):
         load_scene(tmp_path / "d.toml")
+
+
+def test_patient_base_scene_gives_a_label_map_scene_the_default_physics_and_a_2_degree_sweep(tmp_path):
+    """What the README's short patient scene loads to: default materials, effects and mesh sizes, no
+    phantom, and the patient sweep (11 angles x 40 displacements: the phantom's 11 paths, unmirrored)."""
+    (tmp_path / "patient.toml").write_text(
+        f'extends = "{SCENES / "patient.toml"}"\nname = "p"\n[label_map]\npath = "labels.nii.gz"\n'
+        "[label_map.labels]\nprostate = 1\nrectal_wall = 2\n[guide]\ntip_mm = [1.0, -14.0, 35.0]\n")
+    scene, default = load_scene(tmp_path / "patient.toml"), load_scene(SCENES / "default.toml")
+    assert scene.phantom is None and scene.label_map.path == tmp_path / "labels.nii.gz"
+    assert scene.tissues == default.tissues and scene.effects == default.effects and scene.mesh == default.mesh
+    assert scene.effects.guide_contact and scene.effects.geometric_nonlinearity
+    assert scene.guide.tip_mm == (1.0, -14.0, 35.0) and scene.guide.axis == default.guide.axis
+    assert len(scene.sweep.angles_deg) == 11 and np.allclose(scene.sweep.angles_deg, np.arange(-10, 11, 2))
+    assert np.allclose(scene.sweep.displacements_mm, default.sweep.displacements_mm)
