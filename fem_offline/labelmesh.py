@@ -33,7 +33,6 @@ from .scene import Guide, LabelMap, MeshSize, Scene
 
 log = logging.getLogger(__name__)
 
-FACET_DISTANCE_VOXELS = 0.5  # CGAL: how far a surface facet may stray from the labels' boundary
 TETGEN_RADIUS_EDGE = 1.5  # TetGen -q: the largest circumradius / shortest edge of a tet it refines to
 REGION_PURITY = 0.9  # a region TetGen closes off must be at least this fraction one tissue
 ENVELOPE_VOXELS = 0.1  # fTetWild's envelope: how far the tet faces may stray from the smoothed surface
@@ -124,7 +123,8 @@ def box_grid(lo: np.ndarray, hi: np.ndarray, step_mm: float) -> tuple[np.ndarray
     return points, tets
 
 
-def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide,
+          facet_distance_voxels: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CGAL's labelled-image mesher (pygalmesh): points (n, 3) in voxel index coordinates, tets (m, 4), tissue (m,).
 
     Cell sizes are per label, so the guide's fine ball is a label of its own (the tissue's voxels
@@ -145,7 +145,7 @@ def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.nd
     with _quiet_native_output():  # CGAL prints its progress whatever `verbose` says
         mesh = pygalmesh.generate_from_array(
             np.pad(sub, 1).astype(np.uint8), spacing, max_cell_circumradius=sizes,
-            max_facet_distance=FACET_DISTANCE_VOXELS * float(min(spacing)), max_radius_surface_delaunay_ball=size.prostate_mm,
+            max_facet_distance=facet_distance_voxels * float(min(spacing)), max_radius_surface_delaunay_ball=size.prostate_mm,
             min_facet_angle=25.0, max_circumradius_edge_ratio=3.0, verbose=False, seed=0)
     tets = mesh.get_cells_type("tetra").astype(np.int64)
     label = mesh.get_cell_data("medit:ref", "tetra").astype(np.int64)
@@ -261,7 +261,8 @@ def mesh_label_map(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray, tu
     tissues = voxel_tissues(image, spec)
     t0 = time.perf_counter()
     try:
-        points, tets, tissue = MESHERS[spec.mesher](tissues, size=scene.mesh, guide=scene.guide)
+        options = {"facet_distance_voxels": spec.facet_distance_voxels} if spec.mesher == "cgal" else {}
+        points, tets, tissue = MESHERS[spec.mesher](tissues, size=scene.mesh, guide=scene.guide, **options)
     except ModuleNotFoundError as exc:
         raise ValueError(f"label_map.mesher: {spec.mesher!r} needs the package {exc.name!r} "
                          f"({PACKAGE_HINT.get(spec.mesher, 'pip install it')})") from None

@@ -105,9 +105,16 @@ class LabelMap(_Strict):
     background: str = "adipose"  # tissue of label-0 voxels; "" = label 0 is outside the body
     outside: tuple[Annotated[int, Field(gt=0)], ...] = ()
     mesher: Literal["cgal", "ftetwild", "tetgen"] = "cgal"  # scripts/compare_meshers.py measures them
+    # CGAL only: how far a surface facet may stray from the labels' boundary, in voxels (the smallest
+    # spacing). It sets the surface triangles, and so most of the tets: 0.5 gives 21,900 tets on the
+    # medium variant's 1 mm map, 1.0 13,900 (scripts/labelmap_truth.py measures what it costs).
+    facet_distance_voxels: Annotated[float, Field(gt=0, le=4)] = 0.5
 
     @model_validator(mode="after")
     def _distinct(self) -> LabelMap:
+        # a dumped scene carries the default, so only another value is refused
+        if self.facet_distance_voxels != LabelMap.model_fields["facet_distance_voxels"].default and self.mesher != "cgal":
+            raise ValueError(f"facet_distance_voxels is CGAL's; mesher {self.mesher!r} does not use it")
         values = list(self.labels.values())
         if len(set(values)) != len(values):
             raise ValueError(f"each tissue needs its own label value, got {self.labels}")
@@ -282,7 +289,9 @@ class Scene(_Strict):
         # Fields added later are left out while at their default, so the scenes, sweeps and models
         # made before them keep their hashes.
         for section, key in _LATER_FIELDS:
-            parent = data if section is None else data[section]
+            parent = data if section is None else data.get(section)
+            if parent is None:  # an optional section the scene does not have (label_map)
+                continue
             model = type(self) if section is None else type(getattr(self, section))
             if parent.get(key) == model.model_fields[key].default:
                 parent.pop(key, None)
@@ -291,7 +300,8 @@ class Scene(_Strict):
 
 
 _LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"), ("guide", "tip_radius_mm"),
-                 ("guide", "contact_stiffness_kpa_mm"), ("guide", "contact_tol_mm"), ("effects", "guide_contact"))
+                 ("guide", "contact_stiffness_kpa_mm"), ("guide", "contact_tol_mm"), ("effects", "guide_contact"),
+                 ("label_map", "facet_distance_voxels"))
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")
 
 

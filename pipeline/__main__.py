@@ -19,6 +19,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--offgrid", type=int, default=8, help="held-out off-grid FE cases (default 8)")
     b.add_argument("--rank", type=int, default=32, help="PCA modes (default 32, capped by the snapshots)")
     b.add_argument("--workers", type=int, default=2)
+    b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, scripts/labelmap_truth.py's JSON "
+                   "(default docs/labelmap_truth.json): the row of the map's voxel size and mesher goes into the manifest")
     return ap
 
 
@@ -34,8 +36,11 @@ def main(argv: list[str] | None = None) -> int:
         for name in ("offgrid", "rank", "workers"):
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name}: must be at least 1")
+        if args.fe_estimate is not None and not args.fe_estimate.is_file():
+            raise ValueError(f"--fe-estimate: no such file {args.fe_estimate}")
+        extra = {} if args.fe_estimate is None else {"fe_estimate": args.fe_estimate}
         build(args.scene, args.out, work=args.work,
-              options=BuildOptions(offgrid_cases=args.offgrid, rank=args.rank, workers=args.workers))
+              options=BuildOptions(offgrid_cases=args.offgrid, rank=args.rank, workers=args.workers, **extra))
     except (SceneError, ValueError, ConvergenceError, RuntimeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

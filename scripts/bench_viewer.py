@@ -44,6 +44,16 @@ def _summary(ms) -> str:
     return f"p50 {np.percentile(ms, 50):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms, max {ms.max():.1f} ms"
 
 
+def _stalls(frames, key: str = "frameMs", factor: float = 10.0) -> str:
+    """Where the outliers are: frames slower than `factor` x the median, by index in the drag (0 = the first)."""
+    ms = np.asarray([f[key] for f in frames])
+    slow = np.flatnonzero(ms > factor * np.median(ms))
+    if not len(slow):
+        return f"no frame over {factor:g}x the median"
+    return (f"{len(slow)} frame{'s' if len(slow) > 1 else ''} over {factor:g}x the median: "
+            + ", ".join(f"#{i} {ms[i]:.0f} ms (render {frames[i]['renderMs']:.0f} ms)" for i in slow[:8]))
+
+
 # Resource Timing of every /predict request since the last call: (sent, first byte, last byte) in ms from its start.
 PREDICT_TIMINGS = """() => { const out = performance.getEntriesByType('resource').filter((e) => e.name.endsWith('/predict'))
   .map((e) => [e.requestStart - e.startTime, e.responseStart - e.startTime, e.responseEnd - e.startTime]);
@@ -61,6 +71,7 @@ def _stepwise(page, values, pause_ms: float, label: str) -> None:
                      ("  the reply's body", last - first),
                      ("of which the render (three.js + gl.finish)", [f["renderMs"] for f in frames])):
         print(f"    {name}: {_summary(ms)}")
+    print(f"    stalls: {_stalls(frames)}")
 
 
 def _ways(folder, scene, case: dict) -> list[tuple[str, list[dict]]]:
@@ -103,6 +114,7 @@ def main() -> None:
         print(f"    latest input shown to frame: {_summary([f['frameMs'] for f in frames])}")
         print(f"    first input answered to frame: {_summary([f['firstInputMs'] for f in frames])}")
         print(f"    of which the /predict replies: {_summary([f['fetchMs'] for f in frames])}")
+        print(f"    stalls: {_stalls(frames)}")
         ways = _ways(folder, scene, {"displacement_mm": hi / 2})
         times = page.evaluate(FETCH_ROUNDS, [[bodies for _, bodies in ways], args.rounds])
         print(f"  fetch only, {args.rounds} rounds, the ways interleaved:")

@@ -27,20 +27,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from contracts.model import FitOptions, onnx_session  # noqa: E402
-from training.fit import fit_surrogate, region_errors  # noqa: E402
-from training.snapshots import read_offgrid, read_sweep, valid_part  # noqa: E402
+from training.fit import fit_surrogate, region_errors, training_set  # noqa: E402
+from training.snapshots import read_offgrid, read_sweep, sub_grid, valid_part  # noqa: E402
 
 DEFAULT = {"rank": 64, "width": 160, "depth": 1}  # models/default
 GRIDS = ((1, 1), (2, 1), (4, 1), (1, 2), (2, 2), (4, 2))  # (angle stride, displacement stride)
-
-
-def sub_grid(inputs: np.ndarray, angle_stride: int, disp_stride: int) -> np.ndarray:
-    """Mask of the snapshots on every angle_stride-th angle from the smallest and every disp_stride-th
-    displacement counted back from the largest (the 21 angles keep both ends for strides 2 and 4)."""
-    angles, disps = np.unique(inputs[:, 1]), np.unique(inputs[:, 0])
-    keep_a = angles[::angle_stride]
-    keep_d = disps[::-1][::disp_stride]
-    return np.isin(inputs[:, 1], keep_a) & np.isin(inputs[:, 0], keep_d)
 
 
 def main() -> int:
@@ -56,6 +47,8 @@ def main() -> int:
     og_in, og_ref = read_offgrid(args.offgrid, len(sweep.mesh.nodes))
     inside = np.array([envelope.contains(*x) for x in og_in], dtype=bool)
     og_in, og_ref = og_in[inside], og_ref[inside]
+    if not len(og_in):
+        raise SystemExit(f"--offgrid: none of the {len(inside)} cases in {args.offgrid} lies inside the sweep's valid envelope")
     n_angles, n_disps = len(np.unique(data.inputs[:, 1])), len(np.unique(data.inputs[:, 0][data.inputs[:, 0] > 0]))
     print(f"{args.sweep}: {len(data)} snapshots ({n_disps} displacements x {n_angles} angles), {len(sweep.mesh.nodes)} "
           f"nodes; {len(og_in)} off-grid cases", flush=True)
@@ -63,8 +56,7 @@ def main() -> int:
     for a, s in GRIDS:
         mask = sub_grid(data.inputs, a, s) & (data.inputs[:, 0] > 0)
         left = ~mask & (data.inputs[:, 0] > 0)
-        train_in = data.inputs[mask]
-        train_rows = data.displacement[mask].reshape(mask.sum(), -1) / train_in[:, :1]
+        _, train_in, train_rows = training_set(data.select(mask), ())  # nothing held out: the rest of the grid is
         worst = {"offgrid": {}, "left_out": {}}
         t = []
         for seed in range(args.seeds):

@@ -7,7 +7,7 @@ Every configuration (mesh level L of the convergence study, PCA rank r, network 
   error    end to end, per region: e_surrogate(r, w) + e_FE(L) (training/tradeoff.py states both):
            the model against the best converged estimate, not against its own mesh's FE. Regions:
            markers on every level; prostate surface on the two finest levels only (what the JSON
-           stores, see training/tradeoff.py); every node on the finest only (in the table).
+           stores, see training/tradeoff.py); every node on the two finest (in the table).
   latency  one onnxruntime call of the exported float32 graph, 1 thread, batch 1, median of repeats,
            all nodes (the plotted axis) and the prostate-surface subset (in the table). A level
            without a sweep is timed on a graph of the same shapes with a random basis.
@@ -282,7 +282,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "* **FE error of a level** (from the convergence JSON): the finest level's GCI band (Fs 1.25); a coarser "
         "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate surface "
         "only as summaries of the two finest levels, so the surface panel has those levels only (the second finest as "
-        "its largest change plus the largest band, an upper bound), and every node the finest only (table).",
+        "its largest change plus the largest band, an upper bound), and every node the same two (table).",
         f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the only "
         f"840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "
         f"({meta['n_held_out']} cases). **Assumed**: the same (rank, network) errs as much on "

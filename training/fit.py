@@ -132,6 +132,35 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
     return bands, text
 
 
+def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float], str] | None:
+    """The FE error of a label-map model's mesh as estimated on the default phantom's label map
+    (scripts/labelmap_truth.py's JSON): the row with the same voxel size, mesher and CGAL facet
+    distance, as (bands per region, what it is measured against); None for a phantom scene or when
+    no row matches. It covers the voxels and the mesher, not this anatomy: an estimate, said so."""
+    import json
+
+    source = sweep_manifest.source
+    if source is None:
+        return None
+    spec = sweep_manifest.scene["label_map"]
+    facet = spec.get("facet_distance_voxels", 0.5) if spec.get("mesher", "cgal") == "cgal" else None
+    voxel = min(source.spacing_mm)
+    data = json.loads(Path(path).read_text())
+    row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == spec.get("mesher", "cgal")
+                and (r["facet_distance_voxels"] is None) == (facet is None)
+                and (facet is None or abs(r["facet_distance_voxels"] - facet) < 1e-9)), None)
+    if row is None:
+        return None
+    bands = {k: row["regions"][k]["bound_max_mm"] for k in ("markers", "prostate_surface")}
+    how = f"{row['mesher']}" + (f", facets within {facet:g} voxel" if facet is not None else "")
+    text = (f"FE discretisation and voxelisation: estimated, not measured on this anatomy. The default phantom, "
+            f"voxelised at {voxel:g} mm and meshed as this model was ({how}; {row['tets']:,} tets), solved at "
+            f"{data['case']}, is within these bounds of the phantom's converged estimate: its distance to the "
+            f"grid-convergence study's finest level ({data['finest_level_tets']:,} tets) plus that level's grid "
+            f"convergence index (Fs 1.25), max over the points (scripts/labelmap_truth.py, {Path(path).name})")
+    return bands, text
+
+
 def _accuracy(surrogate: dict[str, float], fe: tuple[dict[str, float], str] | None) -> folder.Accuracy:
     if fe is None:
         return folder.Accuracy(reference="the surrogate against the FE of its own mesh only; the FE discretisation "
@@ -139,7 +168,8 @@ def _accuracy(surrogate: dict[str, float], fe: tuple[dict[str, float], str] | No
                                    k: folder.RegionAccuracy(surrogate_mm=v) for k, v in surrogate.items()})
     bands, text = fe
     return folder.Accuracy(reference=f"the converged estimate. {text}", regions={
-        k: folder.RegionAccuracy(surrogate_mm=v, fe_discretisation_mm=bands[k], end_to_end_mm=v + bands[k])
+        k: folder.RegionAccuracy(surrogate_mm=v, fe_discretisation_mm=bands.get(k),
+                                 end_to_end_mm=v + bands[k] if k in bands else None)
         for k, v in surrogate.items()})
 
 
@@ -182,8 +212,9 @@ def _inside_cut(envelope, cut, test_cases, offgrid):
 
 
 def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None = None,
-        fe_error: Path | None = None, progress: bool = True) -> folder.ModelManifest:
-    """Run the whole pipeline and write `out`; returns the manifest."""
+        fe_error: Path | None = None, fe_estimate: Path | None = None, progress: bool = True) -> folder.ModelManifest:
+    """Run the whole pipeline and write `out`; returns the manifest. `fe_error`: a grid-convergence
+    study of the sweep's mesh; else `fe_estimate`: scripts/labelmap_truth.py's JSON, for a label-map sweep."""
     from tqdm import tqdm
 
     from .report import table3_markdown
@@ -195,6 +226,8 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     cases = read_offgrid(offgrid, len(sweep.mesh.nodes)) if offgrid is not None else None
     test_cases, cases, cut = _inside_cut(envelope, cut, options.test_cases, cases)
     fe = fe_discretisation(fe_error, sweep.mesh) if fe_error is not None else None
+    if fe is None and fe_estimate is not None:
+        fe = fe_label_map_estimate(fe_estimate, sweep.manifest)
     test, inputs, rows = training_set(data, test_cases)
     with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
         surrogate = fit_surrogate(inputs, rows, options, progress=bar.update)

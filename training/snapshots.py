@@ -17,7 +17,7 @@ from contracts.envelope import Envelope
 from contracts.model import EnvelopeCut
 from contracts.sweep import MESH_FILE, Sweep, read_cases, read_sweep, sweep_validity
 
-__all__ = ["Snapshots", "Sweep", "read_cases", "read_offgrid", "read_sweep", "snapshots_of", "valid_part"]
+__all__ = ["Snapshots", "Sweep", "read_cases", "read_offgrid", "read_sweep", "snapshots_of", "sub_grid", "valid_part"]
 
 
 @dataclass(frozen=True)
@@ -68,3 +68,12 @@ def read_offgrid(folder: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndarr
     if disp.shape[1] != n_nodes:
         raise ValueError(f"--offgrid: cases have {disp.shape[1]} nodes, the sweep's mesh {n_nodes}")
     return inputs, disp
+
+
+def sub_grid(inputs: np.ndarray, angle_stride: int, disp_stride: int) -> np.ndarray:
+    """Mask of the snapshots on every angle_stride-th angle from the smallest and every disp_stride-th
+    displacement counted back from the largest (the 21 angles keep both ends for strides 2 and 4)."""
+    angles, disps = np.unique(inputs[:, 1]), np.unique(inputs[:, 0])
+    keep_a = angles[::angle_stride]
+    keep_d = disps[::-1][::disp_stride]
+    return np.isin(inputs[:, 1], keep_a) & np.isin(inputs[:, 0], keep_d)

@@ -107,6 +107,18 @@ def test_empty_label_is_refused_naming_the_tissue(image_1mm):
         voxel_tissues(image_1mm, _spec(labels=labels))
 
 
+def test_scene_refuses_a_facet_distance_of_zero_or_for_another_mesher(tiny_scene):
+    data = labelmap_scene(tiny_scene, "labels.nii.gz")
+    data["label_map"]["facet_distance_voxels"] = 0
+    with pytest.raises(SceneError, match="facet_distance_voxels"):
+        parse_scene(data)
+    data["label_map"].update(facet_distance_voxels=1.0, mesher="tetgen")
+    with pytest.raises(SceneError, match="facet_distance_voxels is CGAL's; mesher 'tetgen' does not use it"):
+        parse_scene(data)
+    data["label_map"]["mesher"] = "cgal"
+    assert parse_scene(data).label_map.facet_distance_voxels == 1.0
+
+
 def test_scene_refuses_a_label_used_twice_and_a_tissue_it_does_not_define(tiny_scene):
     data = labelmap_scene(tiny_scene, "labels.nii.gz")
     data["label_map"]["labels"]["bladder"] = 1
@@ -208,3 +220,23 @@ def test_guide_tip_snaps_to_the_lumen_surface(lm_mesh, lm_scene, tiny_scene):
     far = lm_scene.guide.model_copy(update={"tip_mm": (0.0, -21.0, 35.0)})  # the lumen's axis: 7 mm off the wall
     with pytest.raises(ValueError, match=r"guide.tip_mm: .* from the rectal wall's lumen surface .*guide.snap_mm"):
         guide.tip(lm_mesh, far)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pygalmesh") is None, reason="CGAL's mesher needs pygalmesh (`make labelmesh`)")
+def test_cgal_facet_distance_trades_surface_fidelity_for_tets(tiny_scene, image_1mm, tmp_path):
+    """label_map.facet_distance_voxels: a looser surface gives fewer tets, still valid and conforming,
+    and, its facets inscribed farther into the voxels, a prostate farther from the phantom's volume."""
+    from fem_offline.labelmesh import mesh_label_map
+
+    write_label_map(tmp_path / "labels.nii.gz", image_1mm)
+    data = labelmap_scene(tiny_scene, str(tmp_path / "labels.nii.gz"))
+    got = {}
+    for d in (0.5, 1.0):
+        data["label_map"]["facet_distance_voxels"] = d
+        points, tets, tissue, names = mesh_label_map(parse_scene(data))
+        vol = signed_volumes(points, tets)
+        assert ((vol > 0).all() or (vol < 0).all()) and is_conforming(tets)
+        got[d] = (len(tets), tissue_volumes(points, tets, tissue, names)["prostate"])
+    assert got[1.0][0] < 0.9 * got[0.5][0]
+    exact = reference_volumes(tiny_scene.phantom, 0.25)["prostate"]
+    assert abs(got[1.0][1] - exact) > abs(got[0.5][1] - exact)  # inscribed facets: looser loses more volume

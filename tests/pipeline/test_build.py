@@ -90,6 +90,20 @@ def test_service_serves_it_and_reports_the_source(built):
         assert np.linalg.norm(np.asarray(r.json()["displacements"]), axis=1).max() > 0.05
 
 
+def test_viewer_draws_the_label_maps_tissues(built):
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.settings import Settings
+
+    folder, model, _, _, _ = built
+    with TestClient(create_app(Settings(model=folder / "models" / model.name))) as client:
+        scene = client.get("/viewer/scene.json")
+        assert scene.status_code == 200, scene.text
+        assert {"prostate", "rectal_wall", "bladder"} <= {t["name"] for t in scene.json()["tissues"]}
+        assert client.get("/viewer").status_code == 200
+
+
 def test_served_mesh_is_the_scenes_anatomy(built):
     """The model's prostate is the scene's: as long as its ellipsoid and centred where the scene puts it
     (within a voxel and the facet distance); prostate and rectal wall of the label map's volume
@@ -121,3 +135,30 @@ def test_rerun_resumes_without_solving_again(built):
     sweep = json.loads((folder / "work" / "sweep" / "manifest.json").read_text())
     assert sweep["wall_seconds_this_run"] < 1.0  # nothing left to solve
     assert again.mesh == model.mesh
+
+
+def test_fe_estimate_for_the_voxels_and_mesher_goes_into_the_manifest(built, tmp_path):
+    """With a row of scripts/labelmap_truth.py's JSON for the model's voxel size and mesher, the manifest
+    and report.md state it as the FE error, said to be an estimate, and end to end = surrogate + it;
+    with no matching row they say the FE error was not measured."""
+    from training.fit import fit
+
+    folder, model, _, _, voxel = built
+    mesher = model.scene.spec["label_map"]["mesher"]
+    row = {"spacing_mm": voxel, "mesher": mesher, "facet_distance_voxels": 0.5 if mesher == "cgal" else None,
+           "tets": 1000, "regions": {"markers": {"bound_max_mm": 0.3}, "prostate_surface": {"bound_max_mm": 0.7}}}
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"case": "10 mm, 0 deg", "finest_level_tets": 16296, "rows": [row]}))
+    work = folder / "work"
+    est = fit(work / "sweep", tmp_path / "m", model.fit, offgrid=work / "offgrid", fe_estimate=truth, progress=False)
+    regions = est.accuracy.regions
+    assert regions["markers"].fe_discretisation_mm == 0.3
+    assert regions["markers"].end_to_end_mm == pytest.approx(regions["markers"].surrogate_mm + 0.3)
+    assert regions["prostate_surface"].end_to_end_mm == pytest.approx(regions["prostate_surface"].surrogate_mm + 0.7)
+    assert regions["all_nodes"].fe_discretisation_mm is None and regions["all_nodes"].end_to_end_mm is None
+    assert "estimated, not measured on this anatomy" in est.accuracy.reference
+    assert "estimated, not measured on this anatomy" in (tmp_path / "m" / "report.md").read_text()
+    row["spacing_mm"] = 2 * voxel
+    truth.write_text(json.dumps({"case": "10 mm, 0 deg", "finest_level_tets": 16296, "rows": [row]}))
+    other = fit(work / "sweep", tmp_path / "m2", model.fit, offgrid=work / "offgrid", fe_estimate=truth, progress=False)
+    assert other.accuracy.regions["markers"].end_to_end_mm is None and "not measured" in other.accuracy.reference

@@ -1,0 +1,139 @@
+"""The patient pipeline's FE against the converged estimate: the default phantom as a label map.
+
+    python scripts/labelmap_truth.py [--spacing-mm 1] [--mesher cgal] [--facet-distance-voxels 0.5 1] \\
+        [--work runs/labelmap_truth] [--study runs/convergence_contact] [--json docs/labelmap_truth.json]
+
+A patient model's FE error has two parts that a grid-convergence study of the phantom does not see:
+the voxels (the tissue surfaces are a label map's staircase, smoothed) and the label-map mesher's
+tets. This measures both at once where the converged answer is known. The default phantom is
+voxelised (scripts/make_labelmap.py's generator), meshed from its labels with the patient defaults
+(fem_offline/scenes/patient.toml: the default's mesh sizes and physics) and solved at the grid-
+convergence study's hardest case (10 mm, beta = 0, from rest in 0.5 mm steps as the study). Its
+displacement is compared with the study's finest level (`make convergence`; its mesh and solution
+are read from --study) at the study's probe points: the 8 markers, the 3 interior points and the
+default mesh's prostate-surface nodes. The error against the converged estimate is then at most
+|u_labelmap - u_finest| + the finest level's GCI band (docs/convergence_contact.json), pointwise
+at the markers and interior points, as max over the surface; the same bound the study gives the
+default gmsh mesh (its "medium" bound) is printed beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+CASE = (10.0, 0.0)
+CASE_KEY = "10 mm, 0 deg"
+
+
+def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | None, folder: Path):
+    """The default phantom voxelised at spacing_mm into `folder`, and its label-map scene (patient.toml's settings)."""
+    import tomli_w
+
+    from fem_offline.labelmap import write_label_map
+    from fem_offline.labelmap_phantom import labelmap_scene, voxelise
+    from fem_offline.scene import load_scene
+
+    root = Path(__file__).resolve().parents[1] / "fem_offline" / "scenes"
+    phantom = load_scene(root / "default.toml")
+    folder.mkdir(parents=True, exist_ok=True)
+    labels = folder / "labels.nii.gz"
+    if not labels.exists():
+        write_label_map(labels, voxelise(phantom.phantom, spacing_mm))
+    data = labelmap_scene(phantom, labels.name, name=f"default_labelmap_{spacing_mm:g}mm")
+    data["label_map"]["mesher"] = mesher
+    if mesher == "cgal":
+        data["label_map"]["facet_distance_voxels"] = facet_voxels
+    base = load_scene(root / "patient.toml")  # the patient build's sweep and solver; the study's 0.5 mm steps
+    data["sweep"] = base.sweep.model_dump(mode="json")
+    data["solver"] = base.solver.model_dump(mode="json") | {"max_step_mm": 0.5}
+    (folder / "scene.toml").write_text(tomli_w.dumps(data))
+    return load_scene(folder / "scene.toml")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spacing-mm", type=float, nargs="+", default=[1.0])
+    ap.add_argument("--mesher", default="cgal", choices=("cgal", "tetgen"))
+    ap.add_argument("--facet-distance-voxels", type=float, nargs="+", default=[0.5],
+                    help="CGAL's label_map.facet_distance_voxels, one run each")
+    ap.add_argument("--work", type=Path, default=Path("runs/labelmap_truth"))
+    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact"),
+                    help="the contact grid-convergence study's folder (meshes and checkpoints)")
+    ap.add_argument("--convergence", type=Path, default=Path("docs/convergence_contact.json"))
+    ap.add_argument("--json", type=Path, default=Path("docs/labelmap_truth.json"), help="rows merge into it by voxel, mesher, facets")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+
+    from contracts.mesh import read_mesh, write_mesh
+    from fem_offline.convergence import at_points, probe_points, solve_resumable
+    from fem_offline.meshing import load_or_build_mesh, mesh_for_scene
+    from fem_offline.problem import build_problem
+    from fem_offline.scene import load_scene
+
+    study = json.loads(args.convergence.read_text())
+    fine_level, medium_level = study["analysis"]["levels"][-1], study["analysis"]["levels"][-2]
+    row = study["analysis"]["cases"][CASE_KEY]
+    f_scale, m_scale = fine_level["scale"], medium_level["scale"]
+    fine_mesh, medium_mesh = read_mesh(args.study / f"mesh_{f_scale:g}.npz"), read_mesh(args.study / f"mesh_{m_scale:g}.npz")
+    with np.load(args.study / f"path_{f_scale:g}_{CASE[0]:g}_{CASE[1]:g}.npz") as z:
+        if float(z["d_mm"]) < CASE[0] - 1e-9:
+            raise SystemExit(f"{args.study}: the finest level's path stopped at {float(z['d_mm']):g} mm; run make convergence")
+        u_fine = z["u"].reshape(-1, 3)
+    if m_scale != 1.0:
+        raise SystemExit(f"{args.convergence}: its second finest level is sizes x {m_scale:g}, not the default mesh")
+    default = load_scene(Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "default.toml")
+    # the study's probe points: markers and interior as it stored them, the default mesh's prostate surface
+    probes = {k: np.asarray(v) for k, v in study["probes"].items()}
+    probes["prostate_surface"] = probe_points(medium_mesh, default)["prostate_surface"]
+    fine = {k: at_points(fine_mesh, u_fine, p) for k, p in probes.items()}
+    band = {"markers": np.array([r["gci_vector_mm"] for r in row["markers"]]),
+            "interior": np.array([r["gci_vector_mm"] for r in row["interior"]]),
+            "prostate_surface": max(row["surface_near_tip"]["gci_mm"]["max"], row["surface_rest"]["gci_mm"]["max"])}
+    medium_bound = {"markers": max(r["bound_medium_mm"] for r in row["markers"]),
+                    "interior": max(r["bound_medium_mm"] for r in row["interior"]),
+                    "prostate_surface": max(row["surface_near_tip"]["bound_medium_mm"]["max"],
+                                            row["surface_rest"]["bound_medium_mm"]["max"])}
+    out = {"case": CASE_KEY, "convergence": str(args.convergence), "finest_level_tets": fine_level["n_tets"],
+           "default_mesh_bound_mm": medium_bound, "rows": []}
+    runs = [(s, f) for s in args.spacing_mm for f in (args.facet_distance_voxels if args.mesher == "cgal" else [None])]
+    for spacing, facet in runs:
+        folder = args.work / (f"{spacing:g}mm_{args.mesher}" + (f"_facet{facet:g}" if facet else ""))
+        scene = label_map_scene(spacing_mm=spacing, mesher=args.mesher, facet_voxels=facet, folder=folder)
+        t0 = time.perf_counter()
+        if not (folder / "mesh.npz").exists():  # kept: the path's checkpoint belongs to this mesh
+            write_mesh(folder / "mesh.npz", mesh_for_scene(scene))
+        mesh_s = time.perf_counter() - t0
+        mesh = load_or_build_mesh(scene, folder / "mesh.npz")  # its node sets re-derived for the scene's guide
+        u, seconds = solve_resumable(build_problem(scene, mesh), *CASE, folder / "path_10_0.npz")
+        result = {"spacing_mm": spacing, "mesher": args.mesher, "facet_distance_voxels": facet, "tets": len(mesh.tets),
+                  "nodes": len(mesh.nodes), "mesh_s": mesh_s, "solve_s": seconds, "regions": {}}
+        label = f"{spacing:g} mm voxels, {args.mesher}" + (f" (facets {facet:g} voxel)" if facet else "") + f", {len(mesh.tets):,} tets"
+        for k, p in probes.items():
+            diff = np.linalg.norm(at_points(mesh, u, p) - fine[k], axis=1)
+            bound = diff + band[k]
+            result["regions"][k] = {"vs_finest_max_mm": float(diff.max()), "vs_finest_mean_mm": float(diff.mean()),
+                                    "bound_max_mm": float(bound.max()),
+                                    "default_mesh_bound_mm": medium_bound[k]}
+            print(f"{label}: {k}: |u - u_finest| max "
+                  f"{diff.max():.3f} mean {diff.mean():.3f} mm; vs converged <= {bound.max():.3f} mm "
+                  f"(the default gmsh mesh: <= {medium_bound[k]:.3f} mm)", flush=True)
+        print(f"  mesh {mesh_s:.1f} s, solve {seconds:.0f} s", flush=True)
+        out["rows"].append(result)
+    key = lambda r: (r["spacing_mm"], r["mesher"], r["facet_distance_voxels"])  # noqa: E731
+    if args.json.exists():  # rows of earlier runs (other voxels, meshers, facets) are kept
+        done = {key(r) for r in out["rows"]}
+        out["rows"] = [r for r in json.loads(args.json.read_text())["rows"] if key(r) not in done] + out["rows"]
+    out["rows"].sort(key=lambda r: (r["mesher"], -r["spacing_mm"], -(r["facet_distance_voxels"] or 0)))
+    args.json.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
