@@ -20,7 +20,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--rank", type=int, default=32, help="PCA modes (default 32, capped by the snapshots)")
     b.add_argument("--workers", type=int, default=2)
     b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, scripts/labelmap_truth.py's JSON "
-                   "(default docs/labelmap_truth.json): the row of the map's voxel size and mesher goes into the manifest")
+                   "(default docs/labelmap_truth.json): the row of the map's voxel size, mesher and sizes goes into the manifest")
     return ap
 
 

@@ -134,9 +134,9 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
 
 def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float], str] | None:
     """The FE error of a label-map model's mesh as estimated on the default phantom's label map
-    (scripts/labelmap_truth.py's JSON): the row with the same voxel size, mesher and CGAL facet
-    distance, as (bands per region, what it is measured against); None for a phantom scene or when
-    no row matches. It covers the voxels and the mesher, not this anatomy: an estimate, said so."""
+    (scripts/labelmap_truth.py's JSON): the row with the same voxel size, mesher, CGAL facet distance
+    and mesh sizes, as (bands per region, what it is measured against); None for a phantom scene or
+    when no row matches. It covers the voxels and the mesher, not this anatomy: an estimate, said so."""
     import json
 
     source = sweep_manifest.source
@@ -148,7 +148,8 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
     data = json.loads(Path(path).read_text())
     row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == spec.get("mesher", "cgal")
                 and (r["facet_distance_voxels"] is None) == (facet is None)
-                and (facet is None or abs(r["facet_distance_voxels"] - facet) < 1e-9)), None)
+                and (facet is None or abs(r["facet_distance_voxels"] - facet) < 1e-9)
+                and r.get("mesh_mm") == sweep_manifest.scene["mesh"]), None)
     if row is None:
         return None
     bands = {k: row["regions"][k]["bound_max_mm"] for k in ("markers", "prostate_surface")}
