@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     from fem_offline.newton import ConvergenceError
     from fem_offline.scene import SceneError
 
-    from .build import BuildOptions, build
+    from .build import FE_ESTIMATE, BuildOptions, build
 
     try:
         for name in ("offgrid", "rank", "workers"):
@@ -38,9 +38,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"--{name}: must be at least 1")
         if args.fe_estimate is not None and not args.fe_estimate.is_file():
             raise ValueError(f"--fe-estimate: no such file {args.fe_estimate}")
-        extra = {} if args.fe_estimate is None else {"fe_estimate": args.fe_estimate}
         build(args.scene, args.out, work=args.work,
-              options=BuildOptions(offgrid_cases=args.offgrid, rank=args.rank, workers=args.workers, **extra))
+              options=BuildOptions(offgrid_cases=args.offgrid, rank=args.rank, workers=args.workers,
+                                   fe_estimate=args.fe_estimate or FE_ESTIMATE))
     except (SceneError, ValueError, ConvergenceError, RuntimeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

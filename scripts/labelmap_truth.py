@@ -75,6 +75,7 @@ def main() -> int:
     from fem_offline.meshing import load_or_build_mesh, mesh_for_scene
     from fem_offline.problem import build_problem
     from fem_offline.scene import load_scene
+    from training.tradeoff import gci_bands
 
     study = json.loads(args.convergence.read_text())
     fine_level, medium_level = study["analysis"]["levels"][-1], study["analysis"]["levels"][-2]
@@ -92,13 +93,13 @@ def main() -> int:
     probes = {k: np.asarray(v) for k, v in study["probes"].items()}
     probes["prostate_surface"] = probe_points(medium_mesh, default)["prostate_surface"]
     fine = {k: at_points(fine_mesh, u_fine, p) for k, p in probes.items()}
+    one_case = {"cases": {CASE_KEY: row}}  # training.tradeoff's bands, for this case alone
     band = {"markers": np.array([r["gci_vector_mm"] for r in row["markers"]]),
             "interior": np.array([r["gci_vector_mm"] for r in row["interior"]]),
-            "prostate_surface": max(row["surface_near_tip"]["gci_mm"]["max"], row["surface_rest"]["gci_mm"]["max"])}
-    medium_bound = {"markers": max(r["bound_medium_mm"] for r in row["markers"]),
-                    "interior": max(r["bound_medium_mm"] for r in row["interior"]),
-                    "prostate_surface": max(row["surface_near_tip"]["bound_medium_mm"]["max"],
-                                            row["surface_rest"]["bound_medium_mm"]["max"])}
+            "prostate_surface": gci_bands(one_case, "fine")["prostate_surface"]}
+    medium = gci_bands(one_case, "medium")
+    medium_bound = {"markers": medium["markers"], "interior": max(r["bound_medium_mm"] for r in row["interior"]),
+                    "prostate_surface": medium["prostate_surface"]}
     out = {"case": CASE_KEY, "convergence": str(args.convergence), "finest_level_tets": fine_level["n_tets"],
            "default_mesh_bound_mm": medium_bound, "rows": []}
     runs = [(s, f) for s in args.spacing_mm for f in (args.facet_distance_voxels if args.mesher == "cgal" else [None])]

@@ -143,13 +143,11 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
     if source is None:
         return None
     spec = sweep_manifest.scene["label_map"]
-    facet = spec.get("facet_distance_voxels", 0.5) if spec.get("mesher", "cgal") == "cgal" else None
+    facet = spec.get("facet_distance_voxels", 0.5) if spec["mesher"] == "cgal" else None  # None: not CGAL's
     voxel = min(source.spacing_mm)
     data = json.loads(Path(path).read_text())
-    row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == spec.get("mesher", "cgal")
-                and (r["facet_distance_voxels"] is None) == (facet is None)
-                and (facet is None or abs(r["facet_distance_voxels"] - facet) < 1e-9)
-                and r.get("mesh_mm") == sweep_manifest.scene["mesh"]), None)
+    row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == spec["mesher"]
+                and r["facet_distance_voxels"] == facet and r.get("mesh_mm") == sweep_manifest.scene["mesh"]), None)
     if row is None:
         return None
     bands = {k: row["regions"][k]["bound_max_mm"] for k in ("markers", "prostate_surface")}
