@@ -154,11 +154,19 @@ def at_points(mesh, u: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float, checkpoint: Path) -> tuple[np.ndarray, float]:
     """The nonlinear solution at one case, load-stepped from rest; every converged step is saved to
-    `checkpoint`, and a later call resumes from the last one. Returns (u (n_nodes, 3), seconds spent)."""
+    `checkpoint`, and a later call resumes from the last one. Returns (u (n_nodes, 3), seconds spent).
+
+    A checkpoint records its scene's hash; one of another scene (other physics, sizes or guide seat)
+    is refused, not resumed (checkpoints written before the hash was recorded are taken as they are).
+    """
     step = problem.scene.solver.max_step_mm
     state, seconds = None, 0.0
+    sha = problem.scene.sha256()
     if checkpoint.exists():
         with np.load(checkpoint) as z:
+            if "scene_sha256" in z.files and str(z["scene_sha256"]) != sha:
+                raise ValueError(f"{checkpoint} is a path of another scene (sha256 {str(z['scene_sha256'])[:12]}, "
+                                 f"this one {sha[:12]}); delete it or use another folder")
             history = tuple((float(d), h) for d, h in zip(z["history_d"], z["history_u"]))
             multipliers = z["multipliers"] if "multipliers" in z.files else None
             state = PathState(z["u"], float(z["d_mm"]), history, multipliers=multipliers)
@@ -176,7 +184,8 @@ def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float, 
         hist = previous[:-1]
         extra = {} if state.multipliers is None else {"multipliers": state.multipliers}
         atomic_savez(checkpoint, u=u.ravel(), d_mm=d, seconds=seconds, history_d=np.array([h[0] for h in hist]),
-                     history_u=np.stack([h[1] for h in hist]) if hist else np.zeros((0, u.size)), **extra)
+                     history_u=np.stack([h[1] for h in hist]) if hist else np.zeros((0, u.size)), scene_sha256=sha,
+                     **extra)
     return u, seconds
 
 

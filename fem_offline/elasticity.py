@@ -78,22 +78,27 @@ def neo_hookean_tangent(G, W, Finv, J, mu, lam) -> np.ndarray:
     """K_e = int G_aj A_ijkl G_bl, A = dP/dF = mu d_ik d_jl + (mu - lam ln J) Fi_li Fi_jk + lam Fi_ji Fi_lk.
 
     Each term is an outer product summed over quadrature points, written as batched matmuls over
-    (element, 30 x q) blocks: 0.060 s instead of 0.108 s with the equivalent einsums on the
-    default mesh (the tangent was 19 % of a nonlinear path), bit-identical.
+    (element, 30 x q) blocks, and summed in place into the first: no temporary as large as K, which
+    on 20k tets (145 MB per copy) cost more than the products (0.43 s -> 0.10 s a call on the
+    patient_medium mesh, 0.049 -> 0.043 s on the default mesh; bit-identical).
     """
     g = np.matmul(G, Finv)  # (e, q, 10, 3) spatial gradients g_ak = G_aj Fi_jk
     e, q = g.shape[:2]
     gW = g * W[:, :, None, None]
     c = mu[:, None] - lam[:, None] * np.log(J)
     flat = g.reshape(e, q, 30)
-    # K1[e, (a,k), (b,i)] = sum_q c W g_ak g_bi ; K2[e, (a,i), (b,k)] = sum_q W g_ai g_bk
+    # K[e, (a,i), (b,k)] = lam sum_q W g_ai g_bk + K1[e, (a,k), (b,i)], K1 = sum_q c W g_ak g_bi
+    K = np.matmul(gW.reshape(e, q, 30).transpose(0, 2, 1), flat)
+    K *= lam[:, None, None]
     K1 = np.matmul((gW * c[:, :, None, None]).reshape(e, q, 30).transpose(0, 2, 1), flat)
-    K2 = np.matmul(gW.reshape(e, q, 30).transpose(0, 2, 1), flat)
+    K = K.reshape(e, 10, 3, 10, 3)
+    K += K1.reshape(e, 10, 3, 10, 3).transpose(0, 1, 4, 3, 2)
+    del K1
     GW = (G * W[:, :, None, None]).transpose(0, 2, 1, 3).reshape(e, 10, 3 * q)
     M = np.matmul(GW, G.transpose(0, 2, 1, 3).reshape(e, 10, 3 * q).transpose(0, 2, 1))  # (e, 10, 10)
-    K = K1.reshape(e, 10, 3, 10, 3).transpose(0, 1, 4, 3, 2) + lam[:, None, None, None, None] * K2.reshape(e, 10, 3, 10, 3)
-    i = np.arange(3)
-    K[:, :, i, :, i] += mu[None, :, None, None] * M[None]  # mu M_ab d_ik
+    M *= mu[:, None, None]
+    for i in range(3):
+        K[:, :, i, :, i] += M  # mu M_ab d_ik
     return K
 
 

@@ -10,7 +10,7 @@ so the prescribed field is smooth at the patch rim. Lengths in mm, angles in deg
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -35,31 +35,78 @@ def rounded_tip_weight(r_mm: np.ndarray, radius_mm: float) -> np.ndarray:
     return np.cos(0.5 * np.pi * r_mm / radius_mm) ** 2
 
 
-def snap_tip(mesh: TetMesh, guide: Guide) -> tuple[int, float]:
-    """(node, distance mm): the node of the rectal wall's lumen surface nearest guide.tip_mm.
+class Seat(NamedTuple):
+    """Where the tip meets a meshed lumen (guide.snap_mm): the point, the lumen node nearest it, and
+    how far the point is from guide.tip_mm (mm)."""
 
-    The lumen surface is the rectal wall's part of the mesh's exterior (the lumen is a hole).
-    """
+    point: np.ndarray  # (3,)
+    node: int
+    offset_mm: float
+
+
+def _lumen_faces(mesh: TetMesh) -> np.ndarray:
+    """Corner nodes (k, 3) of the rectal wall's exterior faces: the lumen surface (the lumen is a hole)."""
     if "rectal_wall" not in mesh.tissue_names:
         raise ValueError("guide.snap_mm: the mesh has no rectal_wall tissue to snap the tip to")
     ext, owner = boundary_faces(mesh.tets)
-    lumen = np.unique(ext[mesh.tissue[owner] == mesh.tissue_names.index("rectal_wall")])
-    if lumen.size == 0:
+    faces = ext[mesh.tissue[owner] == mesh.tissue_names.index("rectal_wall")][:, :3]
+    if faces.size == 0:
         raise ValueError("guide.snap_mm: the rectal wall has no exterior (lumen) surface; is the lumen labelled outside?")
-    r = np.linalg.norm(mesh.nodes[lumen] - np.asarray(guide.tip_mm), axis=1)
-    return int(lumen[r.argmin()]), float(r.min())
+    return faces
+
+
+def _line_crossings(origin: np.ndarray, direction: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Parameters t (h,) at which origin + t direction crosses the triangles (k, 3, 3) (Moller-Trumbore, both ways)."""
+    e1, e2 = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
+    h = np.cross(direction, e2)
+    a = np.einsum("ki,ki->k", e1, h)
+    ok = np.abs(a) > 1e-12 * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+    f = np.divide(1.0, a, out=np.zeros_like(a), where=ok)
+    s = origin - triangles[:, 0]
+    u = f * np.einsum("ki,ki->k", s, h)
+    q = np.cross(s, e1)
+    v = f * (q @ direction)
+    t = f * np.einsum("ki,ki->k", e2, q)
+    eps = 1e-9
+    return t[ok & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps)]
+
+
+def seat(mesh: TetMesh, guide: Guide) -> Seat:
+    """Where the tip meets the rectal wall's lumen surface on this mesh (guide.snap_to).
+
+    "axis": where the line through guide.tip_mm along guide.axis crosses the lumen surface, the
+    crossing nearest tip_mm. The tip stays on the axis the user gave: a label map's lumen is a
+    smoothed staircase whose nodes lie up to a voxel to the side of any given point, and the nearest
+    node put the push up to 0.5 mm off the midline of the voxelised phantom (its left and right
+    markers then moved up to 0.3 mm apart, where the phantom's move alike; scripts/labelmap_truth.py).
+    "node": the lumen node nearest tip_mm (label-map scenes before snap_to existed).
+    """
+    faces = _lumen_faces(mesh)
+    tip_mm = np.asarray(guide.tip_mm, dtype=np.float64)
+    lumen = np.unique(faces)
+    if guide.snap_to == "node":
+        r = np.linalg.norm(mesh.nodes[lumen] - tip_mm, axis=1)
+        return Seat(mesh.nodes[lumen[r.argmin()]], int(lumen[r.argmin()]), float(r.min()))
+    axis = np.asarray(guide.axis, dtype=np.float64) / np.linalg.norm(guide.axis)
+    t = _line_crossings(tip_mm, axis, mesh.nodes[faces])
+    if t.size == 0:
+        raise ValueError(f"guide.tip_mm: the guide axis {list(guide.axis)} through {list(guide.tip_mm)} never crosses "
+                         "the rectal wall's lumen surface")
+    point = tip_mm + t[np.abs(t).argmin()] * axis
+    r = np.linalg.norm(mesh.nodes[lumen] - point, axis=1)
+    return Seat(point, int(lumen[r.argmin()]), float(np.abs(t).min()))
 
 
 def tip(mesh: TetMesh, guide: Guide) -> np.ndarray:
-    """Centre of the pushed patch (3,): guide.tip_mm, or the lumen-surface node it snaps to (guide.snap_mm)."""
+    """Centre of the pushed patch (3,): guide.tip_mm, or where it seats on the lumen surface (guide.snap_mm)."""
     if guide.snap_mm is None:
         return np.asarray(guide.tip_mm, dtype=np.float64)
-    node, dist = snap_tip(mesh, guide)
-    if dist > guide.snap_mm:
-        raise ValueError(f"guide.tip_mm: {list(guide.tip_mm)} is {dist:.2f} mm from the rectal wall's lumen surface "
-                         f"(nearest node {node} at {np.round(mesh.nodes[node], 2).tolist()}), more than "
-                         f"guide.snap_mm = {guide.snap_mm}")
-    return mesh.nodes[node]
+    where = seat(mesh, guide)
+    if where.offset_mm > guide.snap_mm:
+        along = " along the guide axis" if guide.snap_to == "axis" else ""
+        raise ValueError(f"guide.tip_mm: {list(guide.tip_mm)} is {where.offset_mm:.2f} mm{along} from the rectal wall's "
+                         f"lumen surface (at {np.round(where.point, 2).tolist()}), more than guide.snap_mm = {guide.snap_mm}")
+    return where.point
 
 
 def patch(mesh: TetMesh, guide: Guide) -> tuple[np.ndarray, np.ndarray]:

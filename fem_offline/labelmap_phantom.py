@@ -73,6 +73,8 @@ def labelmap_scene(scene: Scene, label_map_path: str, *, name: str | None = None
     """A label-map scene (TOML data) equivalent to a phantom scene: same tissues, guide, effects, sweep, sizes."""
     data = scene.model_dump(mode="json", exclude_none=True)
     data.pop("phantom", None)
+    if scene.guide.snap_mm is None:  # the phantom's exact tip: the label map's seat takes its defaults (Scene)
+        data["guide"].pop("snap_to", None)
     data["name"] = name or f"{scene.name}_labelmap"
     data["label_map"] = {"path": label_map_path, "labels": dict(LABELS), "background": "adipose", "outside": [LUMEN]}
     return data

@@ -144,9 +144,12 @@ class Guide(_Strict):
     axis: Vec3 = (0.0, 1.0, 0.0)
     tilt_normal: Vec3 = (0.0, 0.0, 1.0)
     patch_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
-    # When set, the tip snaps to the nearest node of the rectal wall's lumen surface, which must lie
-    # within snap_mm of it (guide.snap_tip). Label-map scenes default to SNAP_MM; the phantom's tip is exact.
+    # When set, the tip seats on the rectal wall's lumen surface of the mesh, which must lie within
+    # snap_mm of tip_mm (guide.seat): where the axis through tip_mm crosses it (snap_to = "axis"), or
+    # at the lumen node nearest tip_mm ("node", what label-map scenes did before snap_to existed).
+    # Label-map scenes default to SNAP_MM and "axis"; the phantom's tip is exact and snap_to unused.
     snap_mm: Annotated[float, Field(gt=0, le=20)] | None = None
+    snap_to: Literal["node", "axis"] = "node"
     # effects.guide_contact (contact.py): the rigid rounded tip, a sphere touching the wall at the tip
     tip_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
     contact_stiffness_kpa_mm: Annotated[float, Field(gt=0, le=1e8)] = 3e4  # augmented-Lagrangian penalty k
@@ -257,8 +260,8 @@ class Scene(_Strict):
             data = {**data, "phantom": data.get("phantom")}
         if data.get("label_map") is not None:
             guide = data.get("guide", {})
-            if isinstance(guide, dict) and "snap_mm" not in guide:
-                data["guide"] = {**guide, "snap_mm": SNAP_MM}
+            if isinstance(guide, dict):
+                data["guide"] = {"snap_mm": SNAP_MM, "snap_to": "axis", **guide}
         return data
 
     @model_validator(mode="after")
@@ -299,7 +302,7 @@ class Scene(_Strict):
         return hashlib.sha256(blob).hexdigest()
 
 
-_LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"), ("guide", "tip_radius_mm"),
+_LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"), ("guide", "snap_to"), ("guide", "tip_radius_mm"),
                  ("guide", "contact_stiffness_kpa_mm"), ("guide", "contact_tol_mm"), ("effects", "guide_contact"),
                  ("label_map", "facet_distance_voxels"))
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")

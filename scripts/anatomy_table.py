@@ -53,10 +53,26 @@ def run_cli(*argv) -> None:
         raise SystemExit(f"python -m fem_offline {argv[0]} failed")
 
 
+def solved(folder: Path, scene_path: Path) -> bool:
+    """Whether folder/d10_b0.npz holds this scene's answer; a stale one (another scene hash: the physics
+    or the guide's seat changed since) is removed so that it is solved again."""
+    from fem_offline.scene import load_scene
+
+    case = folder / "d10_b0.npz"
+    if not case.exists():
+        return False
+    with np.load(case) as z:
+        stale = "scene_sha256" not in z.files or str(z["scene_sha256"]) != load_scene(scene_path).sha256()
+    if stale:
+        print(f"{case}: solved for another scene (physics or guide seat changed); solving again", flush=True)
+        case.unlink()
+    return not stale
+
+
 def row(variant: str, folder: Path, *, displacement_mm: float, angle_deg: float) -> dict:
     """The variant's anatomy, mesh and marker motion from the files in `folder`."""
     from fem_offline.anatomy import describe
-    from fem_offline.guide import snap_tip
+    from fem_offline.guide import seat
     from fem_offline.meshing import load_or_build_mesh
     from fem_offline.regions import marker_names
     from fem_offline.scene import load_scene
@@ -68,14 +84,15 @@ def row(variant: str, folder: Path, *, displacement_mm: float, angle_deg: float)
         if not np.array_equal(z["reference_positions"], mesh.nodes):
             raise SystemExit(f"{folder}: d10_b0.npz was solved on another mesh than mesh.npz; delete it and run again")
     markers = mesh.node_sets["markers"]
-    tip_node, tip_off_mm = snap_tip(mesh, scene.guide)  # where the push is centred on this mesh
+    tip = seat(mesh, scene.guide)  # where the push is centred on this mesh
     prostate = mesh.nodes[np.unique(mesh.tets[mesh.tissue == mesh.tissue_names.index("prostate")])]
     return {
         "variant": variant, "scene": f"fem_offline/scenes/anatomy/{variant}.toml",
         "anatomy": describe(load_scene(VARIANTS_DIR / f"{variant}.toml").phantom),
         "mesh": {"tets": len(mesh.tets), "nodes": len(mesh.nodes),
                  "prostate_length_mm": float(np.ptp(prostate[:, 0])),  # on the mesh, against the ellipsoid's
-                 "tip_snapped_mm": np.round(mesh.nodes[tip_node], 3).tolist(), "tip_snap_distance_mm": round(tip_off_mm, 3)},
+                 "tip_snapped_mm": np.round(tip.point, 3).tolist(), "tip_snap_distance_mm": round(tip.offset_mm, 3),
+                 "tip_nearest_node": tip.node, "tip_snap_to": scene.guide.snap_to},
         "displacement_mm": displacement_mm, "angle_deg": angle_deg, "solve": record,
         "markers": {name: {"position_mm": np.round(mesh.nodes[i], 3).tolist(), "u_mm": np.round(u[i], 4).tolist(),
                            "abs_u_mm": round(float(np.linalg.norm(u[i])), 4)} for name, i in zip(marker_names(), markers)},
@@ -115,7 +132,7 @@ def main(argv=None) -> int:
         scene_path = prepare(v, folder, args.spacing_mm)
         if not (folder / "mesh.npz").exists():
             run_cli("mesh", "--scene", scene_path, "--out", folder / "mesh.npz")
-        if not args.prepare_only and not (folder / "d10_b0.npz").exists():
+        if not args.prepare_only and not solved(folder, scene_path):
             run_cli("solve", "--scene", scene_path, "--mesh", folder / "mesh.npz", "--displacement-mm", d,
                     "--angle-deg", beta, "--out", folder / "d10_b0.npz")
     if args.prepare_only:

@@ -1,5 +1,7 @@
 """Grid-convergence arithmetic on exact sequences, and the resumable path a study level runs on."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -77,3 +79,6 @@ def test_interrupted_path_resumes_to_the_uninterrupted_answer(tiny_problem, tmp_
     np.testing.assert_allclose(u, direct, atol=1e-9 * np.abs(direct).max())
     again, _ = solve_resumable(tiny_problem, 2.0, 5.0, checkpoint)  # finished: read back, not solved
     np.testing.assert_array_equal(again, u)
+    other = replace(tiny_problem, scene=scaled_scene(tiny_problem.scene, 1.3))  # another scene's physics
+    with pytest.raises(ValueError, match=r"path\.npz is a path of another scene .*delete it or use another folder"):
+        solve_resumable(other, 3.0, 5.0, checkpoint)
