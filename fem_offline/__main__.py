@@ -40,6 +40,8 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=number("--seed", int), default=0, help="random seed of the draw (default 0)")
     c.add_argument("--mesh", type=Path, help="the sweep's mesh.npz, so the cases share its nodes (default: mesh the scene)")
     c.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one case each (default 2)")
+    c.add_argument("--sweep", type=Path, help="a finished sweep of the same scene on the same mesh: start each case from its "
+                   "fields around it instead of load-stepping from rest (same equilibrium; default: from rest)")
 
     m = sub.add_parser("mesh", help="mesh the scene and write it (.npz, .vtu, .msh or .xdmf)")
     m.add_argument("--scene", required=True, type=Path)
@@ -111,7 +113,7 @@ def _cases(args) -> int:
     scene = load_scene(args.scene)
     args.out.mkdir(parents=True, exist_ok=True)
     mesh_path = mesh_for_cases(load_or_build_mesh(scene, args.mesh), args.out)
-    failures = solve_cases(scene, mesh_path, args.out, args.n, args.seed, workers=args.workers)
+    failures = solve_cases(scene, mesh_path, args.out, args.n, args.seed, workers=args.workers, sweep=args.sweep)
     print(f"{args.out}: {args.n - len(failures)}/{args.n} cases solved (seed {args.seed})")
     for err in failures:
         print(f"failed: {err}", file=sys.stderr)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import glob
 import logging
 import os
@@ -40,18 +41,70 @@ def _point_pypardiso_at_mkl() -> None:
         os.environ["PYPARDISO_MKL_RT"] = hits[0]
 
 
+class _Pardiso:
+    """One MKL PARDISO handle (pypardiso's) on an upper triangle A, in float64 or float32.
+
+    Called directly rather than through pypardiso's solve(): that re-casts the matrix's indices to
+    1-based int32 on every call and takes float64 only. float32 factors (iparm(28) = 1) halve what
+    a factorisation and a back-substitution move through memory; Newton uses them only to
+    precondition CG (newton.py), whose tolerance (1e-2) is far above their 1e-7 relative residual.
+    """
+
+    def __init__(self, A: sp.csr_matrix, mtype: int, single: bool):
+        self._ps = PyPardisoSolver(mtype=mtype)
+        for key, value in IPARM.items():
+            self._ps.set_iparm(key, value)
+        self._ps.set_iparm(28, int(single))
+        self.dtype = np.float32 if single else np.float64
+        self.mtype, self.n = mtype, A.shape[0]
+        self._ia = (A.indptr + 1).astype(np.int32)
+        self._ja = (A.indices + 1).astype(np.int32)
+        try:
+            self.factor(A.data)
+        except np.linalg.LinAlgError:
+            self.free()  # else MKL keeps the failed factors
+            raise
+
+    def _call(self, phase: int, b: np.ndarray) -> np.ndarray:
+        ps, error = self._ps, ctypes.c_int32(0)
+        x = np.zeros_like(b)
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        ps._mkl_pardiso(
+            ps.pt.ctypes.data_as(ctypes.POINTER(ps._pt_type[0])), ctypes.byref(ctypes.c_int32(1)),
+            ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.mtype)), ctypes.byref(ctypes.c_int32(phase)),
+            ctypes.byref(ctypes.c_int32(self.n)), self._a.ctypes.data_as(ctypes.c_void_p), self._ia.ctypes.data_as(i32),
+            self._ja.ctypes.data_as(i32), ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(1)),
+            ps.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)), b.ctypes.data_as(ctypes.c_void_p),
+            x.ctypes.data_as(ctypes.c_void_p), ctypes.byref(error))
+        if error.value != 0:
+            raise np.linalg.LinAlgError(f"PARDISO error {error.value} in phase {phase}")
+        return x
+
+    def factor(self, data: np.ndarray, phase: int = 12) -> None:
+        """Analyse and factorise (phase 12), or refactorise with the analysis kept (phase 22)."""
+        self._a = np.ascontiguousarray(data, dtype=self.dtype)
+        self._call(phase, np.zeros(self.n, self.dtype))
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return self._call(33, np.ascontiguousarray(b, dtype=self.dtype)).astype(np.float64, copy=False)
+
+    def free(self) -> None:
+        self._ps.free_memory(everything=True)
+
+
 class Factor:
     """A factorised symmetric matrix; `solve(b)` reuses the factors (no re-hash of the matrix).
 
     PARDISO runs as SPD Cholesky (mtype 2) on the upper triangle and falls back to symmetric
-    indefinite (mtype -2) if the tangent has lost definiteness. As a preconditioner for a later
-    tangent (modified Newton) it serves while CG needs at most `max_cg` iterations.
+    indefinite (mtype -2, in float64) if the tangent has lost definiteness. As a preconditioner for
+    a later tangent (modified Newton) it serves while CG needs at most `max_cg` iterations.
+    `single`: float32 factors, for a preconditioner (a solve is then accurate to about 1e-7).
     """
 
     max_cg = 12
 
-    def __init__(self, K: sp.csr_matrix):
-        self.shape = K.shape
+    def __init__(self, K: sp.csr_matrix, *, single: bool = False):
+        self.shape, self.single = K.shape, single
         if PyPardisoSolver is None:
             from scipy.sparse.linalg import splu
 
@@ -60,16 +113,12 @@ class Factor:
         self._A = sp.triu(K, format="csr")
         self._A.sort_indices()
         _point_pypardiso_at_mkl()
-        for mtype in (2, -2):
-            self._ps = PyPardisoSolver(mtype=mtype)
-            for key, value in IPARM.items():
-                self._ps.set_iparm(key, value)
+        for mtype, in_single in ((2, single), (-2, False)):
             try:
-                self._ps.factorize(self._A)
+                self._pardiso = _Pardiso(self._A, mtype, in_single)
                 break
-            except Exception as exc:  # PyPardisoError: not positive definite
+            except np.linalg.LinAlgError as exc:  # not positive definite
                 log.info("PARDISO mtype %d failed (%s); trying indefinite", mtype, exc)
-                self._ps.free_memory(everything=True)  # else MKL keeps the failed factors
         else:
             raise np.linalg.LinAlgError("PARDISO could not factorise the tangent")
 
@@ -79,33 +128,31 @@ class Factor:
         Saves the reordering, 0.25 of 1.25 s per factorisation on the default mesh. Falls back to a
         fresh Factor when the pattern differs or the matrix is no longer positive definite.
         """
-        if PyPardisoSolver is None or self._ps.mtype != 2:
-            return Factor(K)
+        if PyPardisoSolver is None or self._pardiso.mtype != 2:
+            return Factor(K, single=self.single)
         A = sp.triu(K, format="csr")
         A.sort_indices()
         if A.nnz != self._A.nnz or not np.array_equal(A.indices, self._A.indices):
-            return Factor(K)
-        self._ps.set_phase(22)
+            return Factor(K, single=self.single)
         try:
-            self._ps._call_pardiso(A, np.zeros((A.shape[0], 1)))
-        except Exception as exc:  # PyPardisoError: lost definiteness
+            self._pardiso.factor(A.data, phase=22)
+        except np.linalg.LinAlgError as exc:  # lost definiteness
             log.info("PARDISO phase 22 failed (%s); full factorisation", exc)
-            return Factor(K)
+            return Factor(K, single=self.single)
         self._A = A
         return self
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         if PyPardisoSolver is None:
             return self._lu.solve(b)
-        self._ps.set_phase(33)
-        return self._ps._call_pardiso(self._A, np.asfortranarray(b, dtype=np.float64))
+        return self._pardiso.solve(b)
 
     precondition = solve
 
     def __del__(self):
         # pypardiso keeps MKL's factors until told; release them with the last reference.
-        if PyPardisoSolver is not None and hasattr(self, "_ps"):
-            self._ps.free_memory(everything=True)
+        if PyPardisoSolver is not None and hasattr(self, "_pardiso"):
+            self._pardiso.free()
 
 
 # Above this many unknowns PARDISO's factors outgrow 24 GB: at 910,980 (the paper-scale phantom,
@@ -175,8 +222,9 @@ class AmgSolve:
 
 
 def factorise(K: sp.csr_matrix, near_nullspace: np.ndarray | None = None, amg_min_dofs: int | None = None,
-              rtol: float = 1e-9):
-    """A solver for K: PARDISO's factors, or AMG-CG to `rtol` when K is too large to factorise (and B is given)."""
+              rtol: float = 1e-9, single: bool = False):
+    """A solver for K: PARDISO's factors (float32 ones if `single`), or AMG-CG to `rtol` when K is too
+    large to factorise (and B is given)."""
     if near_nullspace is not None and K.shape[0] >= (AMG_MIN_DOFS if amg_min_dofs is None else amg_min_dofs):
         return AmgSolve(K, near_nullspace, rtol)
-    return Factor(K)
+    return Factor(K, single=single)

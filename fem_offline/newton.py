@@ -29,6 +29,9 @@ CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
 # each. Further out, where penetrations (and so pressures) are still far from equilibrium, the term
 # made the tangent indefinite (contact.py).
 EXACT_CONTACT_BELOW = 1e-2
+# The tangent's PARDISO factors are float32 (linsolve.Factor): they only precondition CG to CG_RTOL,
+# or give a correction the next Newton iteration corrects. Measured (scripts/profile_path.py): see README.
+SINGLE_FACTORS = True
 
 
 @dataclass(frozen=True)
@@ -140,7 +143,7 @@ def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> t
     if cache.factor is not None:
         cache.factor = cache.factor.refactor(K)
     else:
-        cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL)
+        cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL, single=SINGLE_FACTORS)
     stats = replace(stats, factorizations=stats.factorizations + 1)
     try:
         return cache.factor.solve(rhs), stats

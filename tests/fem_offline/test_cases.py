@@ -38,3 +38,51 @@ def test_cases_are_the_seeded_draw_solved_on_their_own_mesh_and_resume(tmp_path)
 def test_bad_count_is_one_line_naming_the_flag(tmp_path):
     run = cli("cases", "--scene", scene_file(tmp_path, "lin", LINEAR), "--n", 0, "--out", tmp_path / "c")
     assert run.returncode == 2 and "--n must be at least 1" in run.stderr and "Traceback" not in run.stderr
+
+
+CONTACT_GRID = """[effects]
+guide_contact = true
+[sweep]
+displacement_step_mm = 1.0
+displacement_max_mm = 2.0
+angle_min_deg = 0.0
+angle_max_deg = 10.0
+angle_step_deg = 10.0
+"""
+
+
+def test_a_case_started_from_the_sweep_reaches_the_equilibrium_of_the_path_from_rest(tmp_path):
+    """Hyperelastic tissue and frictionless contact are conservative: the equilibrium at (1.5 mm, 4 deg)
+    does not depend on the start. Newton started there from the bilinear blend of the 4 snapshots
+    around it meets the same tolerances as the path from rest, with less work, and lands on its answer
+    within what the contact tolerance leaves open."""
+    from contracts.mesh import read_mesh
+    from fem_offline.cases import _solve, grid_start
+    from fem_offline.sweep import run_sweep
+
+    scene = load_scene(scene_file(tmp_path, "contact", CONTACT_GRID))
+    manifest = run_sweep(scene, tmp_path / "sweep", workers=1)
+    assert manifest.n_done == 4 and not manifest.errors
+    problem = build_problem(scene, read_mesh(tmp_path / "sweep" / "mesh.npz"))
+    start = grid_start(tmp_path / "sweep", manifest.grid, 1.5, 4.0)
+    with np.load(tmp_path / "sweep" / "snapshots" / "a000_d000.npz") as a, \
+            np.load(tmp_path / "sweep" / "snapshots" / "a001_d001.npz") as b:
+        corners = (a["displacement"].ravel(), b["displacement"].ravel())
+    assert np.abs(start).max() > 0 and not np.allclose(start, corners[0]) and not np.allclose(start, corners[1])
+    warm, warm_stats, how = _solve(problem, 1.5, 4.0, str(tmp_path / "sweep"))
+    rest, rest_stats = solve_case(problem, 1.5, 4.0)
+    assert how == "sweep"
+    for stats in (warm_stats, rest_stats):
+        assert stats.residual <= scene.solver.rtol and stats.penetration_mm <= scene.guide.contact_tol_mm
+    assert warm_stats.iterations < rest_stats.iterations
+    assert np.linalg.norm(warm - rest, axis=1).max() < 0.01 * np.linalg.norm(rest, axis=1).max()
+
+
+def test_cases_refuse_a_sweep_of_other_physics(tmp_path):
+    from fem_offline.sweep import run_sweep
+
+    run_sweep(load_scene(scene_file(tmp_path, "lin", LINEAR)), tmp_path / "sweep")
+    run = cli("cases", "--scene", scene_file(tmp_path, "contact", CONTACT_GRID), "--n", 1, "--out", tmp_path / "c",
+              "--sweep", tmp_path / "sweep", "--mesh", tmp_path / "sweep" / "mesh.npz")
+    assert run.returncode == 2 and "--sweep" in run.stderr and "another scene" in run.stderr
+    assert "Traceback" not in run.stderr and not list((tmp_path / "c").glob("offgrid_*.npz"))

@@ -61,3 +61,35 @@ def test_newton_with_amg_tangent_solves_reaches_pardisos_equilibrium(tiny_proble
     assert amg.cg_iterations > direct.cg_iterations  # the AMG path ran
     assert amg.residual <= tiny_problem.scene.solver.rtol
     assert np.abs(u_amg - u_direct).max() < 1e-4 * np.abs(u_direct).max()
+
+
+def test_single_precision_factors_solve_to_float32_accuracy_and_refactor(tiny_linear_problem):
+    """float32 factors (Newton's preconditioner): a solve is accurate to float32's precision times the
+    condition, far inside CG's 1e-2, and phase 22 keeps them float32 on the same handle."""
+    p = tiny_linear_problem
+    Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+    K = assemble_matrix(p.pattern, Ke)
+    rhs = -apply_matrix(p.pattern, Ke, p.dirichlet(5.0, 4.0))[p.free]
+    single, double = Factor(K, single=True), Factor(K)
+    x32, x64 = single.solve(rhs), double.solve(rhs)
+    assert x32.dtype == np.float64
+    rel = np.linalg.norm(K @ x32 - rhs) / np.linalg.norm(rhs)
+    assert 1e-12 < rel < 1e-4  # float32 arithmetic, not float64's (which reaches ~1e-15)
+    assert np.linalg.norm(K @ x64 - rhs) / np.linalg.norm(rhs) < 1e-12
+    assert np.abs(x32 - x64).max() < 1e-4 * np.abs(x64).max()
+    again = single.refactor(2.0 * K)
+    assert again is single and again.single
+    np.testing.assert_allclose(again.solve(rhs), 0.5 * x64, rtol=0, atol=1e-4 * np.abs(x64).max())
+
+
+def test_newton_with_single_precision_factors_reaches_the_double_precision_equilibrium(tiny_problem, monkeypatch):
+    """The float32 preconditioner changes the path's work, not its answer: both meet solver.rtol and agree."""
+    import fem_offline.newton as nt
+    from fem_offline.solve import solve_case
+
+    monkeypatch.setattr(nt, "SINGLE_FACTORS", False)
+    u64, st64 = solve_case(tiny_problem, 5.0, -7.0)
+    monkeypatch.setattr(nt, "SINGLE_FACTORS", True)
+    u32, st32 = solve_case(tiny_problem, 5.0, -7.0)
+    assert max(st64.residual, st32.residual) <= tiny_problem.scene.solver.rtol
+    assert np.abs(u32 - u64).max() < 1e-6 * np.abs(u64).max()
