@@ -26,7 +26,13 @@ def main() -> None:
     ap.add_argument("--mesh", required=True, help="mesh.npz of the scene (e.g. a sweep folder's)")
     ap.add_argument("--angle-deg", type=float, default=10.0)
     ap.add_argument("--to-mm", type=float, default=10.0)
+    ap.add_argument("--double-factors", action="store_true",
+                    help="precondition with float64 PARDISO factors instead of float32 (newton.SINGLE_FACTORS)")
     args = ap.parse_args()
+    if args.double_factors:
+        import fem_offline.newton as newton
+
+        newton.SINGLE_FACTORS = False
     scene = load_scene(args.scene)
     problem = build_problem(scene, load(args.mesh))
     step = scene.sweep.displacement_step_mm
