@@ -31,6 +31,7 @@ CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
 EXACT_CONTACT_BELOW = 1e-2
 # The tangent's PARDISO factors are float32 (linsolve.Factor): they only precondition CG to CG_RTOL,
 # or give a correction the next Newton iteration corrects. Measured (scripts/profile_path.py): see README.
+# A superposable (linear, glued) problem keeps float64 ones: its one solve is the answer, exact to round-off.
 SINGLE_FACTORS = True
 
 
@@ -143,7 +144,8 @@ def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> t
     if cache.factor is not None:
         cache.factor = cache.factor.refactor(K)
     else:
-        cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL, single=SINGLE_FACTORS)
+        cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL,
+                                 single=SINGLE_FACTORS and not p.superposable)
     stats = replace(stats, factorizations=stats.factorizations + 1)
     try:
         return cache.factor.solve(rhs), stats
