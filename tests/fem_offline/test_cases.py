@@ -43,8 +43,8 @@ def test_bad_count_is_one_line_naming_the_flag(tmp_path):
 CONTACT_GRID = """[effects]
 guide_contact = true
 [sweep]
-displacement_step_mm = 1.0
-displacement_max_mm = 2.0
+displacement_step_mm = 0.5
+displacement_max_mm = 1.0
 angle_min_deg = 0.0
 angle_max_deg = 10.0
 angle_step_deg = 10.0
@@ -52,7 +52,7 @@ angle_step_deg = 10.0
 
 
 def test_a_case_started_from_the_sweep_reaches_the_equilibrium_of_the_path_from_rest(tmp_path):
-    """Hyperelastic tissue and frictionless contact are conservative: the equilibrium at (1.5 mm, 4 deg)
+    """Hyperelastic tissue and frictionless contact are conservative: the equilibrium at (0.75 mm, 4 deg)
     does not depend on the start. Newton started there from the bilinear blend of the 4 snapshots
     around it meets the same tolerances as the path from rest, with less work, and lands on its answer
     within what the contact tolerance leaves open."""
@@ -64,13 +64,13 @@ def test_a_case_started_from_the_sweep_reaches_the_equilibrium_of_the_path_from_
     manifest = run_sweep(scene, tmp_path / "sweep", workers=1)
     assert manifest.n_done == 4 and not manifest.errors
     problem = build_problem(scene, read_mesh(tmp_path / "sweep" / "mesh.npz"))
-    start = grid_start(tmp_path / "sweep", manifest.grid, 1.5, 4.0)
+    start = grid_start(tmp_path / "sweep", manifest.grid, 0.75, 4.0)
     with np.load(tmp_path / "sweep" / "snapshots" / "a000_d000.npz") as a, \
             np.load(tmp_path / "sweep" / "snapshots" / "a001_d001.npz") as b:
         corners = (a["displacement"].ravel(), b["displacement"].ravel())
     assert np.abs(start).max() > 0 and not np.allclose(start, corners[0]) and not np.allclose(start, corners[1])
-    warm, warm_stats, how = _solve(problem, 1.5, 4.0, str(tmp_path / "sweep"))
-    rest, rest_stats = solve_case(problem, 1.5, 4.0)
+    warm, warm_stats, how = _solve(problem, 0.75, 4.0, str(tmp_path / "sweep"))
+    rest, rest_stats = solve_case(problem, 0.75, 4.0)
     assert how == "sweep"
     for stats in (warm_stats, rest_stats):
         assert stats.residual <= scene.solver.rtol and stats.penetration_mm <= scene.guide.contact_tol_mm

@@ -88,8 +88,8 @@ def test_newton_with_single_precision_factors_reaches_the_double_precision_equil
     from fem_offline.solve import solve_case
 
     monkeypatch.setattr(nt, "SINGLE_FACTORS", False)
-    u64, st64 = solve_case(tiny_problem, 5.0, -7.0)
+    u64, st64 = solve_case(tiny_problem, 2.5, -7.0)
     monkeypatch.setattr(nt, "SINGLE_FACTORS", True)
-    u32, st32 = solve_case(tiny_problem, 5.0, -7.0)
+    u32, st32 = solve_case(tiny_problem, 2.5, -7.0)
     assert max(st64.residual, st32.residual) <= tiny_problem.scene.solver.rtol
     assert np.abs(u32 - u64).max() < 1e-6 * np.abs(u64).max()
