@@ -17,6 +17,7 @@ at single nodes, what the contact tolerance leaves open (README, "Off-grid cases
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -69,9 +70,7 @@ def grid_start(sweep: Path, grid: folder.Grid, d_mm: float, angle_deg: float) ->
 def solve_from(problem: Problem, start: np.ndarray, d_mm: float, angle_deg: float):
     """Newton at the guide position (d, beta) from `start` (n_dofs,), one step, no halving: (u, Stats).
     Raises ConvergenceError when that step does not converge."""
-    solver = problem.scene.solver.model_copy(update={"max_halvings": 0})
-    one_step = replace(problem, scene=problem.scene.model_copy(update={"solver": solver}))
-    (_, u, stats), = solve_path(one_step, [d_mm], angle_deg, state=PathState(start, d_mm))
+    (_, u, stats), = solve_path(problem.with_solver(max_halvings=0), [d_mm], angle_deg, state=PathState(start, d_mm))
     return u, stats
 
 
@@ -94,8 +93,6 @@ def _solve(problem: Problem, d_mm: float, angle_deg: float, sweep: str | None):
 def solve_one(scene_json: str, mesh_path: str, out: str, index: int, d_mm: float, angle_deg: float,
               sweep: str | None = None) -> str | None:
     """Solve one case and write it; the error message if it did not converge."""
-    import time
-
     from .sweep import _problem
 
     problem, t0 = _problem(scene_json, mesh_path), time.perf_counter()

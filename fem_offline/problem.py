@@ -63,6 +63,11 @@ class Problem:
         lam = np.zeros(self.contact.shape) if multipliers is None else multipliers
         return replace(self, contact_load=ct.Load(ct.centre(self.contact, self.scene.guide, displacement_mm, angle_deg), lam))
 
+    def with_solver(self, **controls) -> Problem:
+        """This problem with some of scene.solver's controls changed (e.g. max_step_mm, max_halvings)."""
+        solver = self.scene.solver.model_copy(update=controls)
+        return replace(self, scene=self.scene.model_copy(update={"solver": solver}))
+
     def dirichlet(self, displacement_mm: float, angle_deg: float) -> np.ndarray:
         """Prescribed displacement on all DOFs (zero where free): the guide's field d w a(beta)."""
         return guide.prescribed(self.scene.guide, dofs=self.guide_dofs, weight=self.guide_weight, n_dofs=self.n_dofs,

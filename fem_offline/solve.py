@@ -26,7 +26,6 @@ def solve_case(problem: Problem, displacement_mm: float, angle_deg: float,
         u = superpose(linear_modes(problem), displacement_mm, angle_deg)
         return u, Stats(factorizations=1, seconds=time.perf_counter() - t0)
     if step_mm is not None:
-        solver = problem.scene.solver.model_copy(update={"max_step_mm": step_mm})
-        problem = replace(problem, scene=problem.scene.model_copy(update={"solver": solver}))
+        problem = problem.with_solver(max_step_mm=step_mm)
     (_, u, stats), = solve_path(problem, [displacement_mm], angle_deg)
     return u, replace(stats, seconds=time.perf_counter() - t0)
