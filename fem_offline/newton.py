@@ -130,16 +130,25 @@ def _tangent(p: Problem, ev: Eval, exact_contact: bool = False) -> np.ndarray:
     return Ke
 
 
+def _preconditioned_cg(K, rhs, factor, stats: Stats) -> tuple[np.ndarray | None, Stats]:
+    """K du = rhs by CG to CG_RTOL preconditioned with `factor`; None when it needs more than factor.max_cg."""
+    M = LinearOperator(K.shape, matvec=factor.precondition, dtype=np.float64)
+    count = [0]
+    du, info = cg(K, rhs, rtol=CG_RTOL, maxiter=factor.max_cg, M=M,
+                  callback=lambda _: count.__setitem__(0, count[0] + 1))
+    return (du if info == 0 else None), replace(stats, cg_iterations=stats.cg_iterations + count[0])
+
+
 def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> tuple[np.ndarray, Stats]:
     """K du = rhs by CG preconditioned with the cached factorisation (or AMG hierarchy above
-    AMG_MIN_DOFS); refactorise when CG needs more than the solver's max_cg iterations (it drifted)."""
+    AMG_MIN_DOFS); refactorise when CG needs more than the solver's max_cg iterations (it drifted).
+
+    Fresh float32 factors also go through CG on the float64 K: on an ill-conditioned tangent (a
+    stiffness contrast of 1e4) their own solve can be too inexact to lower the energy. Where CG
+    cannot converge with them either, the tangent is factorised in float64."""
     if cache.factor is not None:
-        M = LinearOperator(K.shape, matvec=cache.factor.precondition, dtype=np.float64)
-        count = [0]
-        du, info = cg(K, rhs, rtol=CG_RTOL, maxiter=cache.factor.max_cg, M=M,
-                      callback=lambda _: count.__setitem__(0, count[0] + 1))
-        stats = replace(stats, cg_iterations=stats.cg_iterations + count[0])
-        if info == 0:
+        du, stats = _preconditioned_cg(K, rhs, cache.factor, stats)
+        if du is not None:
             return du, stats
     if cache.factor is not None:
         cache.factor = cache.factor.refactor(K)
@@ -147,6 +156,12 @@ def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> t
         cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL,
                                  single=SINGLE_FACTORS and not p.superposable)
     stats = replace(stats, factorizations=stats.factorizations + 1)
+    if getattr(cache.factor, "single", False):
+        du, stats = _preconditioned_cg(K, rhs, cache.factor, stats)
+        if du is not None:
+            return du, stats
+        cache.factor = Factor(K)
+        stats = replace(stats, factorizations=stats.factorizations + 1)
     try:
         return cache.factor.solve(rhs), stats
     except np.linalg.LinAlgError as exc:  # AMG-CG on a tangent that lost definiteness
