@@ -13,8 +13,9 @@ IMAGE ?= deform-service
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
-# The viewer's browser tests drive Debian's chromium through Playwright (no browser download).
-BROWSER_DEBS := chromium
+# The viewer's browser tests drive Debian's chromium through Playwright (no browser download); its
+# WebGL runs on Mesa's llvmpipe through EGL (service/browser.py: half SwiftShader's CPU a frame).
+BROWSER_DEBS := chromium libegl-mesa0 libgl1-mesa-dri
 # three.js from npm (viewer/package-lock.json), copied where the service serves it; the copies are committed.
 VIEWER_VENDOR := service/static/viewer/vendor
 THREE := viewer/node_modules/three
@@ -28,7 +29,7 @@ system-deps:
 	  echo "installing gmsh's system libraries: $(GMSH_DEBS)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(GMSH_DEBS) >/dev/null; \
 	fi
-	@if ! command -v chromium >/dev/null; then \
+	@if ! command -v chromium >/dev/null || ! ldconfig -p | grep -q libEGL_mesa.so.0; then \
 	  echo "installing the viewer tests' browser: $(BROWSER_DEBS)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(BROWSER_DEBS) >/dev/null; \
 	fi

@@ -1,4 +1,4 @@
-"""Slider-to-frame latency of the viewer in headless chromium (SwiftShader WebGL), and what each way of fetching a frame costs.
+"""Slider-to-frame latency of the viewer in headless chromium (software WebGL), and what each way of fetching a frame costs.
 
     python scripts/bench_viewer.py [--model models/default] [--moves 200] [--pause-ms 30] [--interval-ms 16.7] [--rounds 50]
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.browser import add_target, drag, open_viewer, paced_drag
+from service.browser import WEBGL_RENDERER, add_target, drag, open_viewer, paced_drag
 from service.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
@@ -100,6 +100,7 @@ def main() -> None:
         scene = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json())")
         print(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
               f"{', '.join(r or 'the whole mesh' for r in scene['regions'])}")
+        print(f"  WebGL: {page.evaluate(WEBGL_RENDERER)}")
         hi = page.evaluate("Number(document.getElementById('displacement').max)")
         values = np.round(np.linspace(0.0, hi, 41), 2)[np.arange(args.moves) % 41]
         _stepwise(page, values, args.pause_ms, "no targets")

@@ -1,11 +1,16 @@
 """Drive the viewer in a real browser: Debian's chromium under Playwright (the dev extra; never a downloaded browser).
 
 For the viewer's tests and scripts/bench_viewer.py; the service itself never imports this module.
-WebGL runs on SwiftShader (software), which headless chromium needs without a GPU.
+Without a GPU, WebGL runs in software: on Mesa's llvmpipe through ANGLE's GL-EGL backend where
+Mesa's EGL is installed (`make system-deps`), else on chromium's own SwiftShader. Measured on the
+default model at 1280 x 800 (scripts/bench_viewer.py, README "Browser viewer"): SwiftShader's GPU
+process spent about 260 ms of CPU per frame and llvmpipe's about 110, on the 2 cores the service
+shares, so llvmpipe is preferred.
 """
 
 from __future__ import annotations
 
+import ctypes.util
 import shutil
 import threading
 import time
@@ -15,7 +20,20 @@ from typing import Iterator
 from .loadtest import free_port
 
 CHROMIUM = ("chromium", "chromium-browser")
-WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+SWIFTSHADER_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+# chromium blocklists llvmpipe as a software GL; unblocked, WebGL 2 runs on it.
+LLVMPIPE_FLAGS = ["--use-angle=gl-egl", "--ignore-gpu-blocklist", "--enable-unsafe-swiftshader"]
+
+
+def webgl_flags() -> list[str]:
+    """Chromium's flags for software WebGL: Mesa's llvmpipe where libEGL_mesa is installed, else SwiftShader."""
+    return LLVMPIPE_FLAGS if ctypes.util.find_library("EGL_mesa") else SWIFTSHADER_FLAGS
+
+
+# What the page's WebGL runs on (the unmasked renderer string), for benchmarks to print.
+WEBGL_RENDERER = """() => { const gl = document.createElement('canvas').getContext('webgl2');
+  if (!gl) return 'no WebGL 2'; const info = gl.getExtension('WEBGL_debug_renderer_info');
+  return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER); }"""
 
 
 def find_chromium() -> str | None:
@@ -46,14 +64,14 @@ def serve_in_thread(app, *, timeout_s: float = 30.0) -> Iterator[str]:
 
 @contextmanager
 def launch_chromium() -> Iterator[object]:
-    """A headless Playwright browser on the chromium found on PATH, WebGL on SwiftShader."""
+    """A headless Playwright browser on the chromium found on PATH, WebGL in software (`webgl_flags`)."""
     from playwright.sync_api import sync_playwright
 
     executable = find_chromium()
     if executable is None:
         raise FileNotFoundError("no chromium on PATH (make system-deps installs it)")
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=WEBGL_FLAGS)
+        browser = playwright.chromium.launch(executable_path=executable, args=webgl_flags())
         try:
             yield browser
         finally:

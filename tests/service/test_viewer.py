@@ -127,6 +127,19 @@ def test_page_loads_without_errors_with_the_envelope_on_its_sliders(viewer, tiny
 
 
 @needs_chromium
+def test_webgl_runs_on_the_software_backend_chosen_and_multisamples_only_on_hardware(viewer):
+    from service.browser import LLVMPIPE_FLAGS, webgl_flags
+
+    page, _, _ = viewer
+    state = page.evaluate("({webgl: __viewer.webgl, antialias: __viewer.antialias, "
+                          "context: __viewer.contextAntialias()})")
+    expected = "llvmpipe" if webgl_flags() == LLVMPIPE_FLAGS else "SwiftShader"
+    assert expected in state["webgl"]
+    # software: no multisampling (its clears and resolves stalled frames), and the context has none
+    assert state["antialias"] is False and state["context"] is False
+
+
+@needs_chromium
 def test_displacement_slider_moves_the_prostate_and_keeps_the_camera(viewer, tiny_folder, tmp_path):  # noqa: F811
     page, problems, _ = viewer
     top = tiny_folder.manifest.envelope.displacement_mm[1]  # the linear sweep's valid part (tests/conftest.py)
