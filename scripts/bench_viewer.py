@@ -13,16 +13,21 @@ Starts `python -m service` on a loopback port, opens /viewer and prints the page
     so a frame is timed from the latest input it shows and, separately, from the first input it
     answers (the oldest one coalesced into it);
   * fetch only: the ways a frame could be fetched, interleaved in each of `--rounds` rounds.
+With `--trace FILE`, the paced drag runs under a chromium trace (Playwright's start_tracing) written
+to FILE, and the WebGL commands the GPU process spent longest on are printed (where a render stall
+sits).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from service.browser import WEBGL_RENDERER, add_target, drag, open_viewer, paced_drag
+from service.browser import WEBGL_RENDERER, add_target, drag, launch_chromium, open_viewer, paced_drag
 from service.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
@@ -74,6 +79,32 @@ def _stepwise(page, values, pause_ms: float, label: str) -> None:
     print(f"    stalls: {_stalls(frames)}")
 
 
+# the command buffer traces each GL command under disabled-by-default-gpu.service once the decoder category is on
+TRACE_CATEGORIES = ["toplevel", "gpu", "viz", "cc", "benchmark", "disabled-by-default-gpu.service",
+                    "disabled-by-default-gpu.decoder"]
+
+
+def _slow_gl_commands(path: Path, top: int = 6) -> list[str]:
+    """The GL commands of a chromium trace with the longest single execution in the GPU process.
+
+    The command buffer service traces each command as an async begin/end pair
+    (`disabled-by-default-gpu.service`, e.g. kClear); pairs are matched by id, name and thread.
+    """
+    events = json.loads(path.read_text())
+    events = events["traceEvents"] if isinstance(events, dict) else events
+    began, took = {}, defaultdict(list)
+    for e in sorted((e for e in events if e.get("cat") == "disabled-by-default-gpu.service" and e.get("ph") in "be"),
+                    key=lambda e: e["ts"]):
+        key = (e.get("id") or e.get("id2", {}).get("local"), e["name"], e["tid"])
+        if e["ph"] == "b":
+            began[key] = e["ts"]
+        elif key in began:
+            took[e["name"]].append((e["ts"] - began.pop(key)) / 1000)
+    commands = {name: np.asarray(ms) for name, ms in took.items() if name.startswith("k")}
+    return [f"{name}: {len(ms)} calls, p50 {np.median(ms):.2f} ms, max {ms.max():.0f} ms, {ms.sum() / 1000:.1f} s in all"
+            for name, ms in sorted(commands.items(), key=lambda kv: -kv[1].max())[:top]]
+
+
 def _ways(folder, scene, case: dict) -> list[tuple[str, list[dict]]]:
     """(label, /predict bodies) of each way a frame could be fetched."""
     drawn = drawn_nodes(folder)
@@ -94,20 +125,30 @@ def main() -> None:
     ap.add_argument("--pause-ms", type=float, default=30.0, help="stepwise drag: pause after each frame")
     ap.add_argument("--interval-ms", type=float, default=1000 / 60, help="paced drag: time between inputs")
     ap.add_argument("--rounds", type=int, default=50, help="fetch-only rounds")
+    ap.add_argument("--antialias", choices=("auto", "on", "off"), default="auto",
+                    help="multisampling: the page's choice (off on a software renderer), or forced (/viewer?antialias=1 or 0)")
+    ap.add_argument("--trace", type=Path, help="write a chromium trace of the paced drag here and print its slowest GL commands")
     args = ap.parse_args()
     folder = read_model_folder(args.model)
-    with local_service("--model", str(args.model)) as url, open_viewer(url, watch=False) as (page, _):
+    with local_service("--model", str(args.model)) as url, launch_chromium() as browser, \
+            open_viewer(url, browser=browser, watch=False, query={"auto": "", "on": "antialias=1", "off": "antialias=0"}[
+                args.antialias]) as (page, _):
         scene = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json())")
         print(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
               f"{', '.join(r or 'the whole mesh' for r in scene['regions'])}")
-        print(f"  WebGL: {page.evaluate(WEBGL_RENDERER)}")
+        print(f"  WebGL: {page.evaluate(WEBGL_RENDERER)}, multisampling "
+              f"{'on' if page.evaluate('__viewer.contextAntialias()') else 'off'}")
         hi = page.evaluate("Number(document.getElementById('displacement').max)")
         values = np.round(np.linspace(0.0, hi, 41), 2)[np.arange(args.moves) % 41]
         _stepwise(page, values, args.pause_ms, "no targets")
         add_target(page)
         _stepwise(page, values, args.pause_ms, "one target")
         page.click("#clear-targets")
+        if args.trace:
+            browser.start_tracing(page=page, path=str(args.trace), categories=TRACE_CATEGORIES)
         paced = paced_drag(page, "displacement", np.round(np.linspace(0.0, hi, args.moves), 3), interval_ms=args.interval_ms)
+        if args.trace:
+            browser.stop_tracing()
         frames = paced["frames"]
         print(f"  paced drag, {paced['inputs']} inputs every {args.interval_ms:.1f} ms over {paced['seconds']:.1f} s: "
               f"{len(frames)} frames, {np.mean([f['inputs'] for f in frames]):.1f} inputs a frame (max "
@@ -116,6 +157,10 @@ def main() -> None:
         print(f"    first input answered to frame: {_summary([f['firstInputMs'] for f in frames])}")
         print(f"    of which the /predict replies: {_summary([f['fetchMs'] for f in frames])}")
         print(f"    stalls: {_stalls(frames)}")
+        if args.trace:
+            print(f"    slowest GL commands in the GPU process (trace: {args.trace}):")
+            for line in _slow_gl_commands(args.trace):
+                print(f"      {line}")
         ways = _ways(folder, scene, {"displacement_mm": hi / 2})
         times = page.evaluate(FETCH_ROUNDS, [[bodies for _, bodies in ways], args.rounds])
         print(f"  fetch only, {args.rounds} rounds, the ways interleaved:")

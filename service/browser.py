@@ -63,15 +63,15 @@ def serve_in_thread(app, *, timeout_s: float = 30.0) -> Iterator[str]:
 
 
 @contextmanager
-def launch_chromium() -> Iterator[object]:
-    """A headless Playwright browser on the chromium found on PATH, WebGL in software (`webgl_flags`)."""
+def launch_chromium(flags: list[str] | None = None) -> Iterator[object]:
+    """A headless Playwright browser on the chromium found on PATH, WebGL in software (`flags`, default `webgl_flags()`)."""
     from playwright.sync_api import sync_playwright
 
     executable = find_chromium()
     if executable is None:
         raise FileNotFoundError("no chromium on PATH (make system-deps installs it)")
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=executable, args=webgl_flags())
+        browser = playwright.chromium.launch(executable_path=executable, args=webgl_flags() if flags is None else flags)
         try:
             yield browser
         finally:
@@ -80,15 +80,17 @@ def launch_chromium() -> Iterator[object]:
 
 @contextmanager
 def open_viewer(url: str, *, browser=None, width: int = 1280, height: int = 800,
-                watch: bool = True) -> Iterator[tuple[object, list[str]]]:
+                watch: bool = True, query: str = "") -> Iterator[tuple[object, list[str]]]:
     """(page, problems) with /viewer loaded and its first frame drawn, in `browser` or a chromium of its own.
 
     With `watch`, problems collects console errors, page errors and any request that leaves
     `url` (the page must work offline); benchmarks leave it off, since every watched request
-    is an event for the driver to handle on the same cores.
+    is an event for the driver to handle on the same cores. `query` is the page URL's query string
+    ("antialias=1" turns multisampling on whatever the renderer).
     """
     if browser is None:
-        with launch_chromium() as own, open_viewer(url, browser=own, width=width, height=height, watch=watch) as opened:
+        with launch_chromium() as own, open_viewer(url, browser=own, width=width, height=height, watch=watch,
+                                                   query=query) as opened:
             yield opened
         return
     problems: list[str] = []
@@ -98,7 +100,7 @@ def open_viewer(url: str, *, browser=None, width: int = 1280, height: int = 800,
             page.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
             page.on("pageerror", lambda e: problems.append(f"page error: {e}"))
             page.on("request", lambda r: r.url.startswith(url) or problems.append(f"request off the service: {r.url}"))
-        page.goto(f"{url}/viewer")
+        page.goto(f"{url}/viewer{'?' + query if query else ''}")
         page.wait_for_function("window.__viewer && window.__viewer.frames >= 1", timeout=60_000)
         yield page, problems
     finally:

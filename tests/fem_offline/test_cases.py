@@ -1,6 +1,7 @@
 """`python -m fem_offline cases`: the seeded draw inside the envelope, solved, written, and resumed."""
 
 import numpy as np
+import pytest
 
 from contracts.sweep import read_cases
 from fem_offline.cases import draw_cases
@@ -28,6 +29,12 @@ def test_cases_are_the_seeded_draw_solved_on_their_own_mesh_and_resume(tmp_path)
     problem = build_problem(scene, read_mesh(out / "mesh.npz"))
     expected, _ = solve_case(problem, *drawn[1])
     np.testing.assert_allclose(displacement[1], expected, atol=1e-10)
+    from fem_offline.validity import probe
+
+    probed = probe(problem)  # each case's det F between the solver's points, as a sweep's snapshots record it
+    for f, u in zip(files, displacement):
+        with np.load(f) as z:
+            assert float(z["min_det_f_probe"]) == pytest.approx(probed.min_jacobian(u.ravel()), rel=1e-9)
     stamps = [f.stat().st_mtime_ns for f in files]
     files[2].unlink()
     again = cli("cases", "--scene", scene_path, "--n", 3, "--seed", 7, "--out", out, "--workers", 1)

@@ -19,6 +19,12 @@ def test_solve_writes_positions_displacement_and_stats(tmp_path, tiny_problem):
         assert z["newton_iterations"] > 0 and z["residual"] <= 1e-6 and z["min_det_f"] > 0
         expected, _ = solve_case(tiny_problem, 1.0, 3.0)
         np.testing.assert_allclose(z["displacement"], expected, atol=1e-9)
+        # det F between the solver's points too (the 11 probe points per tet), as a sweep's snapshots record it
+        from fem_offline.validity import probe
+
+        assert float(z["min_det_f_probe"]) == pytest.approx(probe(tiny_problem).min_jacobian(z["displacement"].ravel()),
+                                                           rel=1e-9)
+        assert 0 < z["min_det_f_probe"] < 1
 
 
 @pytest.mark.parametrize(

@@ -140,6 +140,15 @@ def test_webgl_runs_on_the_software_backend_chosen_and_multisamples_only_on_hard
 
 
 @needs_chromium
+def test_antialias_in_the_url_overrides_the_renderer_check(viewer, browser):
+    _, _, url = viewer
+    for query, expected in (("antialias=1", True), ("antialias=0", False)):
+        with open_viewer(url, browser=browser, query=query) as (page, problems):
+            assert page.evaluate("[__viewer.antialias, __viewer.contextAntialias()]") == [expected, expected]
+            assert problems == []
+
+
+@needs_chromium
 def test_displacement_slider_moves_the_prostate_and_keeps_the_camera(viewer, tiny_folder, tmp_path):  # noqa: F811
     page, problems, _ = viewer
     top = tiny_folder.manifest.envelope.displacement_mm[1]  # the linear sweep's valid part (tests/conftest.py)

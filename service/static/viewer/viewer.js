@@ -108,7 +108,8 @@ function buildScene() {
   scene.background = new THREE.Color(0x1d2127);
   const view = $('view');
   viewer.webgl = probeWebgl();
-  viewer.antialias = !SOFTWARE_GL.test(viewer.webgl ?? '');
+  const asked = new URLSearchParams(window.location.search).get('antialias');  // ?antialias=1 or 0 overrides
+  viewer.antialias = asked === '1' || (asked !== '0' && !SOFTWARE_GL.test(viewer.webgl ?? ''));
   renderer = new THREE.WebGLRenderer({ antialias: viewer.antialias });
   renderer.setPixelRatio(window.devicePixelRatio);
   renderer.setSize(view.clientWidth, view.clientHeight);
