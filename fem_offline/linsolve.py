@@ -150,8 +150,10 @@ class Factor:
     precondition = solve
 
     def __del__(self):
-        # pypardiso keeps MKL's factors until told; release them with the last reference.
-        if PyPardisoSolver is not None and hasattr(self, "_pardiso"):
+        # pypardiso keeps MKL's factors until told; release them with the last reference. Not while
+        # the interpreter shuts down (sys.meta_path is None): pypardiso's release imports then fail,
+        # and the process's exit frees the memory anyway.
+        if PyPardisoSolver is not None and hasattr(self, "_pardiso") and sys.meta_path is not None:
             self._pardiso.free()
 
 

@@ -198,9 +198,22 @@ def newton(problem: Problem, u: np.ndarray, g: np.ndarray, cache: FactorCache,
             break
         Ke = _tangent(p, ev, exact_contact=res < EXACT_CONTACT_BELOW)
         rhs = -(ev.r + apply_matrix(p.pattern, Ke, du_d))[free]
-        step = du_d
-        step[free], stats = _solve_linearised(p, cache, assemble_matrix(p.pattern, Ke), rhs, stats)
-        u, ev = _line_search(p, u, step, ev, prescribed_done, stats)
+        K = assemble_matrix(p.pattern, Ke)
+        step = du_d.copy()
+        step[free], stats = _solve_linearised(p, cache, K, rhs, stats)
+        try:
+            u, ev = _line_search(p, u, step, ev, prescribed_done, stats)
+        except ConvergenceError:
+            if not getattr(cache.factor, "single", False):
+                raise
+            # The correction came through float32 factors (CG to CG_RTOL, or their own solve). On an
+            # ill-conditioned tangent (a stiffness contrast of 1e4) it can fail to lower the energy
+            # where the exact Newton step does: solve exactly with float64 factors, kept from here on.
+            cache.factor = Factor(K)
+            stats = replace(stats, factorizations=stats.factorizations + 1)
+            step = du_d.copy()
+            step[free] = cache.factor.solve(rhs)
+            u, ev = _line_search(p, u, step, ev, prescribed_done, stats)
     raise ConvergenceError(
         f"Newton did not converge in {cfg.max_iterations} iterations (relative residual {stats.residual:.2e})", stats
     )

@@ -84,6 +84,7 @@ def test_killed_sweep_resumes_to_the_same_answer(tmp_path, tiny_problem):
     assert json.loads((out / "manifest.json").read_text())["n_done"] == 3
 
 
+@pytest.mark.slow  # 11 s, a LocalCluster's start; `make test` (CI) runs it
 def test_dask_cluster_matches_local_pool(tmp_path):
     from distributed import LocalCluster
 
