@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.browser import WEBGL_RENDERER, add_target, drag, launch_chromium, open_viewer, paced_drag
+from service.browser import add_target, drag, launch_chromium, open_viewer, paced_drag
 from service.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
@@ -136,7 +136,7 @@ def main() -> None:
         scene = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json())")
         print(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
               f"{', '.join(r or 'the whole mesh' for r in scene['regions'])}")
-        print(f"  WebGL: {page.evaluate(WEBGL_RENDERER)}, multisampling "
+        print(f"  WebGL: {page.evaluate('__viewer.webgl')}, multisampling "
               f"{'on' if page.evaluate('__viewer.contextAntialias()') else 'off'}")
         hi = page.evaluate("Number(document.getElementById('displacement').max)")
         values = np.round(np.linspace(0.0, hi, 41), 2)[np.arange(args.moves) % 41]

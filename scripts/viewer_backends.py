@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from service.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, WEBGL_RENDERER, drag, launch_chromium, open_viewer, \
+from service.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, drag, launch_chromium, open_viewer, \
     set_slider
 from service.loadtest import local_service
 from service.settings import DEFAULT_MODEL
@@ -43,7 +43,7 @@ def gpu_process_cpu_s() -> float:
 def measure(url: str, flags: list[str], antialias: int, frames: int, moves: int) -> dict:
     with launch_chromium(flags) as browser, open_viewer(url, browser=browser, watch=False,
                                                         query=f"antialias={antialias}") as (page, _):
-        renderer = page.evaluate(WEBGL_RENDERER)
+        renderer = page.evaluate('__viewer.webgl')
         got = page.evaluate("__viewer.contextAntialias()")
         hi = float(page.evaluate("Number(document.getElementById('displacement').max)"))
         values = np.round(np.linspace(0.0, hi, 41), 2)

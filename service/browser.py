@@ -30,12 +30,6 @@ def webgl_flags() -> list[str]:
     return LLVMPIPE_FLAGS if ctypes.util.find_library("EGL_mesa") else SWIFTSHADER_FLAGS
 
 
-# What the page's WebGL runs on (the unmasked renderer string), for benchmarks to print.
-WEBGL_RENDERER = """() => { const gl = document.createElement('canvas').getContext('webgl2');
-  if (!gl) return 'no WebGL 2'; const info = gl.getExtension('WEBGL_debug_renderer_info');
-  return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER); }"""
-
-
 def find_chromium() -> str | None:
     """Path of a chromium on PATH (`make system-deps` installs Debian's), or None."""
     return next((path for path in map(shutil.which, CHROMIUM) if path), None)
