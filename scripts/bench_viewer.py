@@ -118,6 +118,14 @@ def _ways(folder, scene, case: dict) -> list[tuple[str, list[dict]]]:
              f"{len(drawn):,} drawn)", [{**case, "region": near}])]
 
 
+def _query(args) -> str:
+    """The /viewer query string of the options that override the page's own choices."""
+    parts = {"auto": [], "on": ["antialias=1"], "off": ["antialias=0"]}[args.antialias]
+    if args.scale is not None:
+        parts.append(f"scale={args.scale:g}")
+    return "&".join(parts)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
@@ -127,17 +135,20 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=50, help="fetch-only rounds")
     ap.add_argument("--antialias", choices=("auto", "on", "off"), default="auto",
                     help="multisampling: the page's choice (off on a software renderer), or forced (/viewer?antialias=1 or 0)")
+    ap.add_argument("--scale", type=float,
+                    help="resolution of a drag's frames (/viewer?scale=): default the page's choice (0.5 on a software renderer, "
+                         "then a still frame at full resolution); 1 keeps full resolution")
     ap.add_argument("--trace", type=Path, help="write a chromium trace of the paced drag here and print its slowest GL commands")
     args = ap.parse_args()
     folder = read_model_folder(args.model)
     with local_service("--model", str(args.model)) as url, launch_chromium() as browser, \
-            open_viewer(url, browser=browser, watch=False, query={"auto": "", "on": "antialias=1", "off": "antialias=0"}[
-                args.antialias]) as (page, _):
+            open_viewer(url, browser=browser, watch=False, query=_query(args)) as (page, _):
         scene = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json())")
         print(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
               f"{', '.join(r or 'the whole mesh' for r in scene['regions'])}")
         print(f"  WebGL: {page.evaluate('__viewer.webgl')}, multisampling "
-              f"{'on' if page.evaluate('__viewer.contextAntialias()') else 'off'}")
+              f"{'on' if page.evaluate('__viewer.contextAntialias()') else 'off'}, a drag's frames at "
+              f"{page.evaluate('__viewer.dragScale'):g} of full resolution")
         hi = page.evaluate("Number(document.getElementById('displacement').max)")
         values = np.round(np.linspace(0.0, hi, 41), 2)[np.arange(args.moves) % 41]
         _stepwise(page, values, args.pause_ms, "no targets")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from service.browser import add_target, open_viewer, set_slider
+from service.browser import add_target, open_viewer, set_slider, wait_still
 from service.loadtest import local_service
 from service.settings import DEFAULT_MODEL
 
@@ -43,6 +43,7 @@ def main() -> None:
             add_target(page)
         set_slider(page, "angle", args.angle_deg)
         state = set_slider(page, "displacement", args.displacement_mm)
+        wait_still(page)  # the full-resolution frame, not a drag's
         page.screenshot(path=args.out)
         if problems:
             raise SystemExit("error: " + "; ".join(problems))

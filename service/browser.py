@@ -111,6 +111,12 @@ def set_slider(page, slider: str, value: float, *, timeout_ms: float = 30_000) -
                          "frames: __viewer.frames, lastFrame: __viewer.lastFrame})")
 
 
+def wait_still(page, *, timeout_ms: float = 30_000) -> None:
+    """Wait until the view is drawn at full resolution (a software renderer draws a drag's frames at
+    less, then a still frame: viewer.js, DRAG_SCALE): before a screenshot."""
+    page.wait_for_function("window.__viewer.still && !window.__viewer.busy", timeout=timeout_ms)
+
+
 # A drag inside the page: each step sets the slider and fires `input` as the browser does while a
 # user drags, waits for the frame that shows it (the page's 'viewer-frame' event, so the wait
 # itself takes no CPU from the page and the service), then pauses (a hand moves at a few tens of Hz).

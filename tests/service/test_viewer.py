@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from .helpers import predict_json
 
-from service.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider
+from service.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
 from service.viewer import STATIC
 
 needs_chromium = pytest.mark.skipif(find_chromium() is None,
@@ -149,6 +149,25 @@ def test_antialias_in_the_url_overrides_the_renderer_check(viewer, browser):
 
 
 @needs_chromium
+def test_a_drag_draws_at_half_resolution_in_software_then_a_still_frame_at_full(viewer, browser):
+    page, problems, url = viewer
+    assert page.evaluate("__viewer.dragScale") == 0.5  # the tests' WebGL is a software renderer
+    full = page.evaluate("__viewer.fullBuffer()")
+    stills = page.evaluate("__viewer.stillFrames")
+    for value in (1.0, 2.0):
+        set_slider(page, "displacement", value)
+        assert page.evaluate("__viewer.lastBuffer") == [n // 2 for n in full]  # the frame the move drew
+    wait_still(page)
+    assert page.evaluate("[__viewer.buffer(), __viewer.stillFrames > " + str(stills) + "]") == [full, True]
+    with open_viewer(url, browser=browser, query="scale=1") as (other, other_problems):  # full resolution throughout
+        set_slider(other, "displacement", 1.0)
+        assert other.evaluate("[__viewer.dragScale, __viewer.lastBuffer, __viewer.still]") == [
+            1, other.evaluate("__viewer.fullBuffer()"), True]
+        assert other_problems == []
+    assert problems == []
+
+
+@needs_chromium
 def test_displacement_slider_moves_the_prostate_and_keeps_the_camera(viewer, tiny_folder, tmp_path):  # noqa: F811
     page, problems, _ = viewer
     top = tiny_folder.manifest.envelope.displacement_mm[1]  # the linear sweep's valid part (tests/conftest.py)
@@ -180,6 +199,7 @@ def test_a_click_on_the_prostate_adds_a_target_that_moves_as_predict_says(viewer
     # interpolated on the page from the frame's own reply: still one /predict request a frame
     assert page.evaluate("__viewer.lastRequests") == 1
     shot = tmp_path / "viewer.png"  # the test's artifact (docs/viewer.png comes from scripts/viewer_screenshot.py)
+    wait_still(page)
     page.screenshot(path=shot)
     assert shot.stat().st_size > 10_000 and problems == []
 

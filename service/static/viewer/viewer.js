@@ -23,10 +23,12 @@ const $ = (id) => document.getElementById(id);
 const viewer = window.__viewer = {
   ready: false, frames: 0, lastFrameMs: null, lastFirstInputMs: null, lastInputs: null, lastFetchMs: null,
   lastRenderMs: null, lastRequests: null, errors: [], targets: [], lastFrame: null, webgl: null, antialias: null,
+  dragScale: 1, still: false, stillFrames: 0, lastBuffer: null,
 };
 // pendingSince: the first input not yet drawn (null: nothing to draw); latestInput: the last one,
 // whose values (d, a) the next frame shows; inputs: how many the next frame answers.
-const state = { d: 0, a: 0, inflight: false, pendingSince: null, latestInput: null, inputs: 0, layers: [], targets: [] };
+const state = { d: 0, a: 0, inflight: false, pendingSince: null, latestInput: null, inputs: 0, layers: [], targets: [],
+  stillTimer: null };
 Object.defineProperty(viewer, 'busy', { get: () => state.inflight || state.pendingSince !== null });
 let scene, camera, renderer, controls, gl, markers, guide, info;
 
@@ -94,6 +96,7 @@ function gatherInto(out, replies, { source, row }) {  // node k's position is ro
 // 1280 x 800 its clears and resolves took about 110 ms of CPU a frame against 70 ms without, and
 // stalled some frames for seconds (README, "Browser viewer").
 const SOFTWARE_GL = /llvmpipe|softpipe|swiftshader/i;
+const DRAG_SCALE = 0.5, STILL_MS = 250;
 function probeWebgl() {
   const probe = document.createElement('canvas').getContext('webgl2');
   if (!probe) return null;
@@ -111,6 +114,11 @@ function buildScene() {
   const asked = new URLSearchParams(window.location.search).get('antialias');  // ?antialias=1 or 0 overrides
   viewer.antialias = asked === '1' || (asked !== '0' && !SOFTWARE_GL.test(viewer.webgl ?? ''));
   renderer = new THREE.WebGLRenderer({ antialias: viewer.antialias });
+  // While the sliders move, a software renderer draws at DRAG_SCALE of the resolution (a quarter of
+  // the pixels at 0.5), and the view is drawn again at full resolution STILL_MS after the last
+  // frame, as VTK's interactive and still update rates do; ?scale=1 keeps full resolution throughout.
+  const scale = Number(new URLSearchParams(window.location.search).get('scale'));
+  viewer.dragScale = scale > 0 && scale <= 1 ? scale : SOFTWARE_GL.test(viewer.webgl ?? '') ? DRAG_SCALE : 1;
   renderer.setPixelRatio(window.devicePixelRatio);
   renderer.setSize(view.clientWidth, view.clientHeight);
   view.appendChild(renderer.domElement);
@@ -150,6 +158,25 @@ function buildScene() {
 
 function render() {
   renderer.render(scene, camera);
+}
+
+// The resolution of the frames a drag draws (viewer.dragScale), then one still frame at full resolution.
+function setScale(scale) {
+  const ratio = window.devicePixelRatio * scale;
+  if (renderer.getPixelRatio() !== ratio) renderer.setPixelRatio(ratio);
+  viewer.still = scale === 1;
+}
+
+function scheduleStill() {
+  clearTimeout(state.stillTimer);
+  if (viewer.dragScale === 1) return;
+  state.stillTimer = setTimeout(() => {
+    if (viewer.busy) return;  // the frame in flight schedules the next still frame
+    setScale(1);
+    render();
+    gl.finish();
+    viewer.stillFrames += 1;
+  }, STILL_MS);
 }
 
 function placeGuide(d, a) {
@@ -239,15 +266,18 @@ async function frame() {
     applyTargets(targets, replies, askPoints ? replies[replies.length - 1] : null);
     placeGuide(d, a);
     const renderStart = performance.now();
+    setScale(viewer.dragScale);
     render();
     gl.finish();  // count the frame when it is drawn, not when its commands are queued
     const end = performance.now();
-    Object.assign(viewer, { lastRenderMs: end - renderStart, lastFrameMs: end - latest, lastFirstInputMs: end - first,
+    Object.assign(viewer, { lastBuffer: [gl.drawingBufferWidth, gl.drawingBufferHeight],
+      lastRenderMs: end - renderStart, lastFrameMs: end - latest, lastFirstInputMs: end - first,
       lastInputs: inputs, lastFetchMs: fetchMs, lastRequests: asked.length, frames: viewer.frames + 1,
       lastFrame: { displacement_mm: d, angle_deg: a } });
     const coalesced = inputs > 1 ? `; ${inputs} moves, first ${viewer.lastFirstInputMs.toFixed(1)} ms` : '';
     $('latency').textContent = `frame ${viewer.lastFrameMs.toFixed(1)} ms (fetch ${fetchMs.toFixed(1)} ms, `
-      + `${asked.length} request${asked.length > 1 ? 's' : ''}${coalesced})`;
+      + `${asked.length} request${asked.length > 1 ? 's' : ''}${coalesced}`
+      + `${viewer.dragScale < 1 ? `; drawn at ${Math.round(100 * viewer.dragScale)} %, then full` : ''})`;
     window.dispatchEvent(new CustomEvent('viewer-frame', { detail: {
       frameMs: viewer.lastFrameMs, firstInputMs: viewer.lastFirstInputMs, inputs, fetchMs, renderMs: viewer.lastRenderMs,
       requests: asked.length } }));
@@ -256,6 +286,7 @@ async function frame() {
   } finally {
     state.inflight = false;
     if (state.pendingSince !== null) frame();
+    else scheduleStill();
   }
 }
 
@@ -359,6 +390,9 @@ viewer.prostateScreenPoint = () => {
   return null;
 };
 viewer.contextAntialias = () => gl.getContextAttributes().antialias;  // for tests: what the context got
+viewer.fullBuffer = () => [renderer.domElement.clientWidth, renderer.domElement.clientHeight].map(
+  (n) => Math.floor(n * window.devicePixelRatio));  // the drawing buffer at full resolution
+viewer.buffer = () => [gl.drawingBufferWidth, gl.drawingBufferHeight];
 viewer.cameraPosition = () => camera.position.toArray();
 viewer.cameraDistance = () => camera.position.distanceTo(controls.target);
 viewer.addTarget = (reference) => addTarget(reference).catch(showError);  // for tests: a target at a reference point
