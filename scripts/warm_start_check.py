@@ -5,7 +5,9 @@
 Re-solves the case with the largest guide displacement (or --index) load-stepped from rest on the
 cases' mesh, and prints how far the two equilibria are apart (markers, prostate surface, every
 node) and what each cost. The physics is conservative, so they should agree within what the
-solver's tolerances leave open (solver.rtol, guide.contact_tol_mm).
+solver's tolerances leave open (solver.rtol, guide.contact_tol_mm). With --model (a model folder
+fitted on the same sweep) it also prints the surrogate's error against each of the two: its
+off-grid error as measured with either start.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, required=True)
     ap.add_argument("--cases", type=Path, required=True, help="a `fem_offline cases --sweep` output folder")
     ap.add_argument("--index", type=int, help="case number (default: the largest displacement)")
+    ap.add_argument("--model", type=Path, help="a model folder: its error against both starts' equilibria")
     args = ap.parse_args()
     files = sorted(args.cases.glob("offgrid_*.npz"))
     cases = [dict(np.load(f)) for f in files]
@@ -46,6 +49,15 @@ def main() -> None:
     for name, ids in (("markers", mesh.node_sets["markers"]), ("prostate surface", mesh.node_sets["prostate_surface"]),
                       ("every node", slice(None))):
         print(f"  {name}: max |u_sweep start - u_rest| {gap[ids].max():.2e} mm (max |u| {np.linalg.norm(u, axis=1)[ids].max():.3f} mm)")
+    if args.model is not None:
+        import onnxruntime as ort
+
+        session = ort.InferenceSession(str(args.model / "model.onnx"), providers=["CPUExecutionProvider"])
+        pred = session.run(None, {"guide": np.array([[d, beta]], dtype=np.float32)})[0][0]
+        for label, fe in (("from the sweep", case["displacement"]), ("from rest", u)):
+            err = np.linalg.norm(pred - fe, axis=1)
+            print(f"  surrogate ({args.model}) vs the case {label}: max over nodes (e_NN) {err.max():.4f} mm, "
+                  f"markers {err[mesh.node_sets['markers']].max():.4f} mm")
 
 
 if __name__ == "__main__":
