@@ -216,8 +216,13 @@ def _ftetwild(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[n
     points = image.to_index(np.asarray(points, dtype=np.float64))
     tets = np.asarray(tets, dtype=np.int64)
     shape = np.array(tissues.index.shape)
-    voxel = np.clip(np.rint(points[tets].mean(axis=1)).astype(int), 0, shape - 1)
-    return points, tets, tissues.index[tuple(voxel.T)].astype(np.int64)
+    centroid = points[tets].mean(axis=1)
+    voxel = np.clip(np.rint(centroid).astype(int), 0, shape - 1)
+    tissue = tissues.index[tuple(voxel.T)].astype(np.int64)
+    # without its filtering, fTetWild fills its own bounding box, which is larger than the image's:
+    # a tet whose centroid is outside the image is OUTSIDE, not the tissue of the nearest edge voxel
+    tissue[((centroid < -0.5) | (centroid > shape - 0.5)).any(axis=1)] = OUTSIDE
+    return points, tets, tissue
 
 
 def snap_to_box(points_index: np.ndarray, tets: np.ndarray, shape, tol_voxels: float = 0.25) -> np.ndarray:

@@ -255,3 +255,26 @@ def test_cgal_facet_distance_trades_surface_fidelity_for_tets(tiny_scene, image_
     assert got[1.0][0] < 0.9 * got[0.5][0]
     exact = reference_volumes(tiny_scene.phantom, 0.25)["prostate"]
     assert abs(got[1.0][1] - exact) > abs(got[0.5][1] - exact)  # inscribed facets: looser loses more volume
+
+
+@pytest.mark.skipif(importlib.util.find_spec("vtk") is None, reason="the surface pipeline needs vtk (offline extra)")
+def test_ftetwild_tets_outside_the_image_are_outside_the_mesh(tiny_scene, image_1mm, monkeypatch):
+    """Unfiltered, fTetWild fills its own bounding box, larger than the image's: those tets are OUTSIDE,
+    not the tissue of the nearest edge voxel (which once doubled the adipose). pytetwild is stood in
+    for by a tet grid over the surface's box and 5 mm beyond, as fTetWild returns it."""
+    import sys
+    import types
+
+    from fem_offline import labelmesh
+    from fem_offline.labelmap import OUTSIDE
+
+    def tetrahedralize(vertices, faces, **_):
+        return labelmesh.box_grid(vertices.min(axis=0) - 5.0, vertices.max(axis=0) + 5.0, 2.0)
+
+    monkeypatch.setitem(sys.modules, "pytetwild", types.SimpleNamespace(tetrahedralize=tetrahedralize))
+    tissues = voxel_tissues(image_1mm, _spec())
+    points, tets, tissue = labelmesh._ftetwild(tissues, size=tiny_scene.mesh, guide=tiny_scene.guide)
+    centroid = points[tets].mean(axis=1)
+    inside = ((centroid >= -0.5) & (centroid <= np.array(image_1mm.labels.shape) - 0.5)).all(axis=1)
+    assert (~inside).sum() > 1000  # the stand-in does reach beyond the image
+    assert (tissue[~inside] == OUTSIDE).all() and (tissue[inside] >= 0).any()
