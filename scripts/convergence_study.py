@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_offline.convergence import NEAR_TIP_MM, analyse, run_study, study_scene
+from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, analyse, run_study, study_scene
 
 
 BIG = ("prostate_surface", "nodes")  # fields at thousands of points: summarised, not stored
@@ -115,12 +115,15 @@ def main() -> int:
     ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
     ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))
+    ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG",
+                    help="the cases to solve on every level (default: the hard cases, fem_offline.convergence.HARD_CASES)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()
     scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact", step_mm=args.step_mm)
     name = "convergence_contact" if scene.effects.guide_contact else "convergence"
-    raw = run_study(scene, args.scales, args.out or Path("runs") / name)
+    cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
+    raw = run_study(scene, args.scales, args.out or Path("runs") / name, cases)
     result = analyse(raw)
     seconds = sum(sum(lv["cases"][c]["seconds"] for c in lv["cases"]) for lv in raw["levels"])
     args.docs.mkdir(parents=True, exist_ok=True)
@@ -130,6 +133,7 @@ def main() -> int:
     (args.docs / f"{name}.json").write_text(json.dumps(_clean(small), allow_nan=False, indent=1) + "\n")
     command = "python scripts/convergence_study.py --scales " + " ".join(f"{s:g}" for s in args.scales)
     command += (f" --guide {args.guide}" if args.guide else "") + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
+    command += (" --cases " + " ".join(args.cases)) if args.cases else ""
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():
