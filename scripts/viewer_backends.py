@@ -3,7 +3,8 @@
     python scripts/viewer_backends.py [--model models/default] [--frames 20] [--moves 300]
 
 For SwiftShader and Mesa's llvmpipe (service.browser's two flag sets), with multisampling on and
-off (/viewer?antialias=1 or 0; scale=1, every frame at full resolution), starts chromium on /viewer of `python -m service` and prints:
+off (/viewer?antialias=1 or 0; scale=1, every frame at full resolution), starts chromium on
+/viewer of `python -m service` and prints:
   * the CPU time chromium's GPU process spends per frame: `--frames` slider moves, each waited
     for and followed by a 0.3 s rest, so one frame's work is all that runs; summed over the GPU
     process's threads (psutil), divided by the frames;
