@@ -82,3 +82,23 @@ def test_interrupted_path_resumes_to_the_uninterrupted_answer(tiny_problem, tmp_
     other = replace(tiny_problem, scene=scaled_scene(tiny_problem.scene, 1.3))  # another scene's physics
     with pytest.raises(ValueError, match=r"path\.npz is a path of another scene .*delete it or use another folder"):
         solve_resumable(other, 3.0, 5.0, checkpoint)
+
+
+def _raw(scales, n_points=5):
+    """run_study's result for levels at `scales`: u = (1 + h^2) e_x at every probe point, h = the scale."""
+    probes = {k: np.zeros((n_points, 3)) for k in ("markers", "interior", "prostate_surface", "nodes")}
+    probes["prostate_surface"][2:, 0] = 50.0  # two surface points at the tip, the rest far from it
+    levels = [{"scale": s, "n_tets": 1000, "n_nodes": 2000,
+               "cases": {"c": {"seconds": 1.0, **{k: np.tile([1.0 + s * s, 0, 0], (n_points, 1)) for k in probes}}}}
+              for s in scales]
+    return {"probes": probes, "levels": levels, "tip_mm": np.zeros(3)}
+
+
+def test_levels_written_to_four_digits_pass_the_ratio_check_and_a_smaller_ratio_does_not():
+    from fem_offline.convergence import analyse
+
+    result = analyse(_raw([1.0, 0.769, 0.5917]))  # 1.3004 and 1.2996: the ratio 1.3, rounded
+    assert result["cases"]["c"]["all_nodes"]["mean_kind"] == "monotonic"
+    assert result["cases"]["c"]["markers"][0]["order"] == pytest.approx(2.0, abs=0.01)
+    with pytest.raises(ValueError, match="need size ratios"):
+        analyse(_raw([1.0, 0.8, 0.64]))  # 1.25
