@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from contracts.mesh import read_mesh
+from contracts.model import onnx_session
 from fem_offline.problem import build_problem
 from fem_offline.regions import build_node_sets
 from fem_offline.scene import load_scene
@@ -50,9 +51,7 @@ def main() -> None:
                       ("every node", slice(None))):
         print(f"  {name}: max |u_sweep start - u_rest| {gap[ids].max():.2e} mm (max |u| {np.linalg.norm(u, axis=1)[ids].max():.3f} mm)")
     if args.model is not None:
-        import onnxruntime as ort
-
-        session = ort.InferenceSession(str(args.model / "model.onnx"), providers=["CPUExecutionProvider"])
+        session = onnx_session(args.model / "model.onnx")
         pred = session.run(None, {"guide": np.array([[d, beta]], dtype=np.float32)})[0][0]
         for label, fe in (("from the sweep", case["displacement"]), ("from rest", u)):
             err = np.linalg.norm(pred - fe, axis=1)

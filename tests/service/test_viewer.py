@@ -158,7 +158,7 @@ def test_a_drag_draws_at_half_resolution_in_software_then_a_still_frame_at_full(
         set_slider(page, "displacement", value)
         assert page.evaluate("__viewer.lastBuffer") == [n // 2 for n in full]  # the frame the move drew
     wait_still(page)
-    assert page.evaluate("[__viewer.buffer(), __viewer.stillFrames > " + str(stills) + "]") == [full, True]
+    assert page.evaluate("(n) => [__viewer.buffer(), __viewer.stillFrames > n]", stills) == [full, True]
     with open_viewer(url, browser=browser, query="scale=1") as (other, other_problems):  # full resolution throughout
         set_slider(other, "displacement", 1.0)
         assert other.evaluate("[__viewer.dragScale, __viewer.lastBuffer, __viewer.still]") == [

@@ -23,13 +23,15 @@ const $ = (id) => document.getElementById(id);
 const viewer = window.__viewer = {
   ready: false, frames: 0, lastFrameMs: null, lastFirstInputMs: null, lastInputs: null, lastFetchMs: null,
   lastRenderMs: null, lastRequests: null, errors: [], targets: [], lastFrame: null, webgl: null, antialias: null,
-  dragScale: 1, still: false, stillFrames: 0, lastBuffer: null,
+  dragScale: 1, stillFrames: 0, lastBuffer: null,
 };
 // pendingSince: the first input not yet drawn (null: nothing to draw); latestInput: the last one,
 // whose values (d, a) the next frame shows; inputs: how many the next frame answers.
 const state = { d: 0, a: 0, inflight: false, pendingSince: null, latestInput: null, inputs: 0, layers: [], targets: [],
   stillTimer: null };
 Object.defineProperty(viewer, 'busy', { get: () => state.inflight || state.pendingSince !== null });
+// whether the view on screen is drawn at full resolution (a drag's frames may not be: setScale)
+Object.defineProperty(viewer, 'still', { get: () => renderer?.getPixelRatio() === window.devicePixelRatio });
 let scene, camera, renderer, controls, gl, markers, guide, info;
 
 function colourInto(out, at, t) {  // viridis at t in 0..1, written to out[at .. at + 2]
@@ -111,13 +113,14 @@ function buildScene() {
   scene.background = new THREE.Color(0x1d2127);
   const view = $('view');
   viewer.webgl = probeWebgl();
-  const asked = new URLSearchParams(window.location.search).get('antialias');  // ?antialias=1 or 0 overrides
+  const query = new URLSearchParams(window.location.search);
+  const asked = query.get('antialias');  // ?antialias=1 or 0 overrides
   viewer.antialias = asked === '1' || (asked !== '0' && !SOFTWARE_GL.test(viewer.webgl ?? ''));
   renderer = new THREE.WebGLRenderer({ antialias: viewer.antialias });
   // While the sliders move, a software renderer draws at DRAG_SCALE of the resolution (a quarter of
   // the pixels at 0.5), and the view is drawn again at full resolution STILL_MS after the last
   // frame, as VTK's interactive and still update rates do; ?scale=1 keeps full resolution throughout.
-  const scale = Number(new URLSearchParams(window.location.search).get('scale'));
+  const scale = Number(query.get('scale'));
   viewer.dragScale = scale > 0 && scale <= 1 ? scale : SOFTWARE_GL.test(viewer.webgl ?? '') ? DRAG_SCALE : 1;
   renderer.setPixelRatio(window.devicePixelRatio);
   renderer.setSize(view.clientWidth, view.clientHeight);
@@ -164,7 +167,6 @@ function render() {
 function setScale(scale) {
   const ratio = window.devicePixelRatio * scale;
   if (renderer.getPixelRatio() !== ratio) renderer.setPixelRatio(ratio);
-  viewer.still = scale === 1;
 }
 
 function scheduleStill() {
