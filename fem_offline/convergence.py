@@ -118,15 +118,18 @@ def scaled_scene(scene: Scene, scale: float) -> Scene:
     return scene.model_copy(update={"mesh": m.model_copy(update=sizes)})
 
 
-def study_scene(path, *, contact: bool | None = None, step_mm: float | None = None) -> Scene:
-    """The scene file, with the guide in contact or glued (effects.guide_contact) and another load step if asked."""
+def study_scene(path, *, contact: bool | None = None, step_mm: float | None = None,
+                volumetric: str | None = None) -> Scene:
+    """The scene file, with the guide in contact or glued (effects.guide_contact), another load step
+    and another volumetric term (solver.volumetric) if asked."""
     from .scene import load_scene
 
     scene = load_scene(path)
     if contact is not None:
         scene = scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": contact})})
-    if step_mm:
-        scene = scene.model_copy(update={"solver": scene.solver.model_copy(update={"max_step_mm": step_mm})})
+    solver = {k: v for k, v in (("max_step_mm", step_mm), ("volumetric", volumetric)) if v}
+    if solver:
+        scene = scene.model_copy(update={"solver": scene.solver.model_copy(update=solver)})
     return scene
 
 

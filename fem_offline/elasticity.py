@@ -13,6 +13,15 @@ Neo-Hookean (compressible), with the small-strain mu, lambda of each tissue:
     P    = mu (F - F^-T) + lambda ln J F^-T
 It is polyconvex and its energy -> infinity as J -> 0, so unlike St Venant-Kirchhoff it does not
 soften and lose stability in compression under the guide.
+
+Mean dilatation (solver.volumetric = "mean_dilatation"; `md` below): the volumetric term is taken
+at each tet's volume ratio theta_e = v_e / V_e = (1/V_e) int_e J dX, not point by point:
+    Pi_vol = sum_e V_e lambda/2 (ln theta_e)^2       (small strain: V_e lambda/2 (mean tr eps)^2)
+    P      = mu (F - F^-T) + p_e J F^-T,  p_e = lambda ln(theta_e) / theta_e
+This is the P2/P0 element with its constant pressure condensed per tet. At nu = 0.495
+(lambda / mu = 99) the pointwise P2 element is too stiff in volume change on coarse meshes
+(volumetric locking, scripts/locking_check.py); one constraint per tet instead of one per
+quadrature point relieves it. The shear terms (mu) stay pointwise.
 """
 
 from __future__ import annotations
@@ -25,57 +34,86 @@ def displacement_gradient(G: np.ndarray, Ue: np.ndarray) -> np.ndarray:
     return np.einsum("eai,eqaj->eqij", Ue, G, optimize=True)
 
 
-def linear_stiffness(G, W, mu, lam) -> np.ndarray:
-    """K_e = int lam (div) (div) + mu (grad u : grad v + grad u : grad v^T)."""
+def tet_mean(W, x) -> tuple[np.ndarray, np.ndarray]:
+    """((1/V_e) int_e x dX, V_e) per tet from values x (n_tets, n_qp) at the quadrature points."""
+    V = W.sum(axis=1)
+    return np.einsum("eq,eq->e", W, x) / V, V
+
+
+def linear_stiffness(G, W, mu, lam, md: bool = False) -> np.ndarray:
+    """K_e = int lam (div) (div) + mu (grad u : grad v + grad u : grad v^T); with `md` the lam term is
+    lam / V_e (int div)(int div)."""
     GW = G * W[:, :, None, None]
     M = np.einsum("eqaj,eqbj->eab", GW, G, optimize=True)
-    K = lam[:, None, None, None, None] * np.einsum("eqai,eqbk->eaibk", GW, G, optimize=True)
+    if md:
+        b = GW.sum(axis=1)  # (e, 10, 3): int dN_a/dX_i
+        K = (lam / W.sum(axis=1))[:, None, None, None, None] * np.einsum("eai,ebk->eaibk", b, b)
+    else:
+        K = lam[:, None, None, None, None] * np.einsum("eqai,eqbk->eaibk", GW, G, optimize=True)
     K += mu[:, None, None, None, None] * np.einsum("eqak,eqbi->eaibk", GW, G, optimize=True)
     K += (mu[:, None, None] * M)[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
     return K
 
 
-def linear_stress(H, mu, lam) -> np.ndarray:
-    """sigma = lam tr(eps) I + 2 mu eps, eps = sym(H)."""
+def linear_stress(H, mu, lam, W=None) -> np.ndarray:
+    """sigma = lam tr(eps) I + 2 mu eps, eps = sym(H); with W (mean dilatation) tr(eps) is each tet's mean."""
     tr = np.trace(H, axis1=2, axis2=3)
+    if W is not None:
+        tr = np.broadcast_to(tet_mean(W, tr)[0][:, None], tr.shape)
     sigma = mu[:, None, None, None] * (H + H.transpose(0, 1, 3, 2))
     sigma += (lam[:, None] * tr)[:, :, None, None] * np.eye(3)
     return sigma
 
 
-def neo_hookean_stress(H, mu, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """First Piola-Kirchhoff stress P, F^-1 and J = det F; J <= 0 gives NaN in P (caller checks)."""
+def neo_hookean_stress(H, mu, lam, W=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First Piola-Kirchhoff stress P, F^-1 and J = det F; J <= 0 gives NaN in P (caller checks).
+    With W, the volumetric stress is the mean dilatation's p_e J F^-T."""
     F = H + np.eye(3)
     J = np.linalg.det(F)
     Finv = np.linalg.inv(F)
     with np.errstate(invalid="ignore", divide="ignore"):
-        lnJ = np.log(J)
+        if W is None:
+            vol = lam[:, None] * np.log(J)
+        else:
+            theta = tet_mean(W, J)[0]
+            vol = (lam * np.log(theta) / theta)[:, None] * J
     FinvT = Finv.transpose(0, 1, 3, 2)
-    P = mu[:, None, None, None] * (F - FinvT) + (lam[:, None] * lnJ)[:, :, None, None] * FinvT
+    P = mu[:, None, None, None] * (F - FinvT) + vol[:, :, None, None] * FinvT
     return P, Finv, J
 
 
-def neo_hookean_energy(H, J, W, mu, lam) -> float:
-    """Stored energy sum_q W(F) dx (kPa mm^3 = mJ), given J = det F from the stress pass; +inf if any J <= 0."""
+def neo_hookean_energy(H, J, W, mu, lam, md: bool = False) -> float:
+    """Stored energy sum_q W(F) dx (kPa mm^3 = mJ), given J = det F from the stress pass; +inf if any J <= 0.
+    With `md` the volumetric part is sum_e V_e lam/2 (ln theta_e)^2."""
     F = H + np.eye(3)
     if not J.min() > 0:
         return np.inf
     lnJ = np.log(J)
     I1 = np.einsum("eqij,eqij->eq", F, F)
-    w = 0.5 * mu[:, None] * (I1 - 3) - mu[:, None] * lnJ + 0.5 * lam[:, None] * lnJ**2
-    return float(np.sum(w * W))
+    w = 0.5 * mu[:, None] * (I1 - 3) - mu[:, None] * lnJ
+    if not md:
+        return float(np.sum((w + 0.5 * lam[:, None] * lnJ**2) * W))
+    theta, V = tet_mean(W, J)
+    return float(np.sum(w * W) + np.sum(0.5 * lam * V * np.log(theta) ** 2))
 
 
-def linear_energy(H, W, mu, lam) -> float:
-    """Stored energy 1/2 sigma : eps summed over quadrature points."""
+def linear_energy(H, W, mu, lam, md: bool = False) -> float:
+    """Stored energy 1/2 sigma : eps summed over quadrature points (with `md`, tr eps is each tet's mean)."""
     eps = 0.5 * (H + H.transpose(0, 1, 3, 2))
     tr = np.trace(eps, axis1=2, axis2=3)
-    w = mu[:, None] * np.einsum("eqij,eqij->eq", eps, eps) + 0.5 * lam[:, None] * tr**2
-    return float(np.sum(w * W))
+    w = mu[:, None] * np.einsum("eqij,eqij->eq", eps, eps)
+    if not md:
+        return float(np.sum((w + 0.5 * lam[:, None] * tr**2) * W))
+    mean_tr, V = tet_mean(W, tr)
+    return float(np.sum(w * W) + np.sum(0.5 * lam * V * mean_tr**2))
 
 
-def neo_hookean_tangent(G, W, Finv, J, mu, lam) -> np.ndarray:
+def neo_hookean_tangent(G, W, Finv, J, mu, lam, md: bool = False) -> np.ndarray:
     """K_e = int G_aj A_ijkl G_bl, A = dP/dF = mu d_ik d_jl + (mu - lam ln J) Fi_li Fi_jk + lam Fi_ji Fi_lk.
+
+    With `md` (g = G F^-1, b_e = int J g dX, p_e = lam ln(theta_e) / theta_e):
+        K_e = lam (1 - ln theta_e) / (theta_e^2 V_e) b_e b_e^T + int p_e J g_ai g_bk
+              + int (mu - p_e J) g_ak g_bi + mu M_ab d_ik.
 
     Each term is an outer product summed over quadrature points, written as batched matmuls over
     (element, 30 x q) blocks, and summed in place into the first: no temporary as large as K, which
@@ -85,11 +123,19 @@ def neo_hookean_tangent(G, W, Finv, J, mu, lam) -> np.ndarray:
     g = np.matmul(G, Finv)  # (e, q, 10, 3) spatial gradients g_ak = G_aj Fi_jk
     e, q = g.shape[:2]
     gW = g * W[:, :, None, None]
-    c = mu[:, None] - lam[:, None] * np.log(J)
     flat = g.reshape(e, q, 30)
-    # K[e, (a,i), (b,k)] = lam sum_q W g_ai g_bk + K1[e, (a,k), (b,i)], K1 = sum_q c W g_ak g_bi
-    K = np.matmul(gW.reshape(e, q, 30).transpose(0, 2, 1), flat)
-    K *= lam[:, None, None]
+    if md:
+        theta, V = tet_mean(W, J)
+        pJ = (lam * np.log(theta) / theta)[:, None] * J  # (e, q)
+        c = mu[:, None] - pJ
+        K = np.matmul((gW * pJ[:, :, None, None]).reshape(e, q, 30).transpose(0, 2, 1), flat)
+        b = np.einsum("eq,eqx->ex", W * J, flat)  # (e, 30)
+        K += (lam * (1.0 - np.log(theta)) / (theta**2 * V))[:, None, None] * (b[:, :, None] * b[:, None, :])
+    else:
+        c = mu[:, None] - lam[:, None] * np.log(J)
+        # K[e, (a,i), (b,k)] = lam sum_q W g_ai g_bk + K1[e, (a,k), (b,i)], K1 = sum_q c W g_ak g_bi
+        K = np.matmul(gW.reshape(e, q, 30).transpose(0, 2, 1), flat)
+        K *= lam[:, None, None]
     K1 = np.matmul((gW * c[:, :, None, None]).reshape(e, q, 30).transpose(0, 2, 1), flat)
     K = K.reshape(e, 10, 3, 10, 3)
     K += K1.reshape(e, 10, 3, 10, 3).transpose(0, 1, 4, 3, 2)

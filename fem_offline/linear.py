@@ -34,7 +34,7 @@ class LinearModes(NamedTuple):
 def linear_modes(problem: Problem) -> LinearModes:
     """u_0, U_axis and U_perp: one factorisation of K_II, two unit solves (and one for gravity)."""
     p = problem
-    Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+    Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam, p.mean_dilatation)
     factor = factorise(assemble_matrix(p.pattern, Ke), near_nullspace=rigid_body_modes(p.mesh.nodes)[p.free])
     fields = []
     for beta in (0.0, 90.0):

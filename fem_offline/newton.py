@@ -101,14 +101,14 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
     H = el.displacement_gradient(p.G, p.element_displacement(u))
     work = p.body_force @ u if p.body_force is not None else 0.0
     if p.nonlinear:
-        P, Finv, J = el.neo_hookean_stress(H, p.mu, p.lam)
+        P, Finv, J = el.neo_hookean_stress(H, p.mu, p.lam, p.W if p.mean_dilatation else None)
         min_j = float(J.min())
         if not min_j > 0:
             return Eval(None, min_j, np.inf)
-        pi = el.neo_hookean_energy(H, J, p.W, p.mu, p.lam) - work
+        pi = el.neo_hookean_energy(H, J, p.W, p.mu, p.lam, p.mean_dilatation) - work
     else:
-        P, min_j, Finv, J = el.linear_stress(H, p.mu, p.lam), 1.0, None, None
-        pi = el.linear_energy(H, p.W, p.mu, p.lam) - work
+        P, min_j, Finv, J = el.linear_stress(H, p.mu, p.lam, p.W if p.mean_dilatation else None), 1.0, None, None
+        pi = el.linear_energy(H, p.W, p.mu, p.lam, p.mean_dilatation) - work
     r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
     if p.body_force is not None:
         r -= p.body_force
@@ -122,9 +122,9 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
 
 def _tangent(p: Problem, ev: Eval, exact_contact: bool = False) -> np.ndarray:
     if p.nonlinear:
-        Ke = el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam)
+        Ke = el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam, p.mean_dilatation)
     else:
-        Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
+        Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam, p.mean_dilatation)
     if ev.contact is not None:
         ct.add_stiffness(p.contact, Ke, ev.contact, curvature=exact_contact)
     return Ke

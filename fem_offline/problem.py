@@ -52,6 +52,11 @@ class Problem:
         return self.scene.effects.geometric_nonlinearity
 
     @property
+    def mean_dilatation(self) -> bool:
+        """solver.volumetric = "mean_dilatation": the volumetric term per tet (elasticity.py)."""
+        return self.scene.solver.volumetric == "mean_dilatation"
+
+    @property
     def superposable(self) -> bool:
         """Linear in the guide displacement: small strain and a glued guide (linear.py)."""
         return not self.nonlinear and self.contact is None

@@ -233,6 +233,9 @@ class Solver(_Strict):
     max_iterations: Annotated[int, Field(ge=1, le=500)] = 40
     max_halvings: Annotated[int, Field(ge=0, le=12)] = 6
     max_step_mm: Annotated[float, Field(gt=0, le=10)] = 0.25  # guide increment per load step
+    # "pointwise": the P2 element as it is; "mean_dilatation": the volumetric term at each tet's mean
+    # volume ratio (P2/P0, against volumetric locking at nu -> 0.5; fem_offline/elasticity.py)
+    volumetric: Literal["pointwise", "mean_dilatation"] = "pointwise"
 
 
 SNAP_MM = 2.0  # default guide.snap_mm of a label-map scene: about two voxels of a clinical T2 segmentation
@@ -304,7 +307,7 @@ class Scene(_Strict):
 
 _LATER_FIELDS = ((None, "label_map"), ("guide", "snap_mm"), ("guide", "snap_to"), ("guide", "tip_radius_mm"),
                  ("guide", "contact_stiffness_kpa_mm"), ("guide", "contact_tol_mm"), ("effects", "guide_contact"),
-                 ("label_map", "facet_distance_voxels"))
+                 ("label_map", "facet_distance_voxels"), ("solver", "volumetric"))
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")
 
 

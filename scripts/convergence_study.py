@@ -113,6 +113,8 @@ def main() -> int:
     ap.add_argument("--guide", choices=("contact", "glued"),
                     help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: the scene's)")
     ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
+    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation"),
+                    help="the element's volumetric term (solver.volumetric; default: the scene's)")
     ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG",
@@ -120,8 +122,11 @@ def main() -> int:
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()
-    scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact", step_mm=args.step_mm)
+    scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact", step_mm=args.step_mm,
+                        volumetric=args.volumetric)
     name = "convergence_contact" if scene.effects.guide_contact else "convergence"
+    if scene.solver.volumetric != "pointwise":
+        name += f"_{scene.solver.volumetric}"
     cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
     raw = run_study(scene, args.scales, args.out or Path("runs") / name, cases)
     result = analyse(raw)
@@ -134,6 +139,7 @@ def main() -> int:
     command = "python scripts/convergence_study.py --scales " + " ".join(f"{s:g}" for s in args.scales)
     command += (f" --guide {args.guide}" if args.guide else "") + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
     command += (" --cases " + " ".join(args.cases)) if args.cases else ""
+    command += f" --volumetric {args.volumetric}" if args.volumetric else ""
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():

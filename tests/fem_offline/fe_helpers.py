@@ -21,20 +21,20 @@ def lame_params(youngs, poisson, n):
     return np.full(n, mu), np.full(n, lam)
 
 
-def solve_linear(tets, n_nodes, G, W, mu, lam, fixed_dofs, g, f_ext):
-    """u with u[fixed] = g[fixed] and K u = f_ext on the free DOFs."""
+def solve_linear(tets, n_nodes, G, W, mu, lam, fixed_dofs, g, f_ext, md=False):
+    """u with u[fixed] = g[fixed] and K u = f_ext on the free DOFs (md: mean dilatation)."""
     free = np.setdiff1d(np.arange(3 * n_nodes), fixed_dofs)
     pattern = build_pattern(tets, n_nodes, free)
-    Ke = el.linear_stiffness(G, W, mu, lam)
+    Ke = el.linear_stiffness(G, W, mu, lam, md)
     u = np.where(np.isin(np.arange(3 * n_nodes), fixed_dofs), g, 0.0)
     rhs = f_ext - apply_matrix(pattern, Ke, u)
     u[free] = Factor(assemble_matrix(pattern, Ke)).solve(rhs[free])
     return u, pattern
 
 
-def internal_force_nh(pattern, G, W, mu, lam, u):
+def internal_force_nh(pattern, G, W, mu, lam, u, md=False):
     H = el.displacement_gradient(G, u[pattern.edofs].reshape(-1, 10, 3))
-    P, _, _ = el.neo_hookean_stress(H, mu, lam)
+    P, _, _ = el.neo_hookean_stress(H, mu, lam, W if md else None)
     return assemble_vector(pattern, el.internal_force(G, W, P))
 
 
@@ -61,7 +61,7 @@ def _octant_shell(a, b, size):
     return MeshTet(p.T.copy(), t.T.copy())
 
 
-def lame_sphere_error(nu, size=0.4):
+def lame_sphere_error(nu, size=0.4, md=False):
     """Max relative radial-displacement error of the thick sphere a=1, b=2 under internal pressure p:
     u(r) = p a^3 / (E (b^3 - a^3)) [(1 - 2 nu) r + (1 + nu) b^3 / (2 r^2)].
     Symmetry planes of the octant: u_n = 0. Checked at vertices, which lie on the true spheres."""
@@ -78,7 +78,7 @@ def lame_sphere_error(nu, size=0.4):
         form = LinearForm(lambda v, w, i=i: p * w.x[i] / np.linalg.norm(w.x, axis=0) * v)
         f[i::3] = form.assemble(fb)
     fixed = np.concatenate([3 * np.flatnonzero(np.abs(nodes[:, i]) < 1e-9) + i for i in range(3)])
-    u, _ = solve_linear(tets, len(nodes), G, W, mu, lam, fixed, np.zeros_like(f), f)
+    u, _ = solve_linear(tets, len(nodes), G, W, mu, lam, fixed, np.zeros_like(f), f, md)
     r = np.linalg.norm(nodes, axis=1)
     ur = np.einsum("ij,ij->i", u.reshape(-1, 3), nodes / r[:, None])
     exact = p * a**3 / (E * (b**3 - a**3)) * ((1 - 2 * nu) * r + (1 + nu) * b**3 / (2 * r**2))
