@@ -18,6 +18,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--work", type=Path, help="sweep and cases folder (default runs/<name of --out>)")
     b.add_argument("--offgrid", type=int, default=8, help="held-out off-grid FE cases (default 8)")
     b.add_argument("--rank", type=int, default=32, help="PCA modes (default 32, capped by the snapshots)")
+    b.add_argument("--width", type=int, default=30, help="hidden neurons (default 30: on a 4 deg sweep, 60 overfits "
+                   "between the angles, docs/sweep_density_patient.json)")
     b.add_argument("--workers", type=int, default=2)
     b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, scripts/labelmap_truth.py's JSON "
                    "(default docs/labelmap_truth.json): the row of the map's voxel size, mesher and sizes goes into the manifest")
@@ -33,13 +35,13 @@ def main(argv: list[str] | None = None) -> int:
     from .build import FE_ESTIMATE, BuildOptions, build
 
     try:
-        for name in ("offgrid", "rank", "workers"):
+        for name in ("offgrid", "rank", "width", "workers"):
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name}: must be at least 1")
         if args.fe_estimate is not None and not args.fe_estimate.is_file():
             raise ValueError(f"--fe-estimate: no such file {args.fe_estimate}")
         build(args.scene, args.out, work=args.work,
-              options=BuildOptions(offgrid_cases=args.offgrid, rank=args.rank, workers=args.workers,
+              options=BuildOptions(offgrid_cases=args.offgrid, rank=args.rank, width=args.width, workers=args.workers,
                                    fe_estimate=args.fe_estimate or FE_ESTIMATE))
     except (SceneError, ValueError, ConvergenceError, RuntimeError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -30,6 +30,9 @@ class BuildOptions:
     offgrid_cases: int = 8  # held-out FE solves at random (d, beta) inside the envelope
     seed: int = 0
     rank: int = 32
+    # 1 x 30 hidden: on the patient sweep's 6 angles (4 deg) 1 x 60 misses the angles between them by
+    # 0.11 mm at the markers, 1 x 30 by 0.005 (scripts/sweep_density.py, docs/sweep_density_patient.json)
+    width: int = 30
     workers: int = 2
     fe_estimate: Path | None = FE_ESTIMATE
 
@@ -91,7 +94,8 @@ def build(scene_path: str | Path, out: str | Path, *, work: str | Path | None = 
     say(f"[3/3] fit into {out}")
     test_cases = held_out_cases(displacements, manifest.grid.angles_deg)
     n_train = sum(r.displacement_mm in displacements for r in manifest.snapshots) - len(test_cases)
-    fit_options = FitOptions(rank=min(options.rank, max(n_train - 1, 1)), seed=options.seed, test_cases=test_cases)
+    fit_options = FitOptions(rank=min(options.rank, max(n_train - 1, 1)), width=options.width, seed=options.seed,
+                             test_cases=test_cases)
     estimate = options.fe_estimate if options.fe_estimate is not None and Path(options.fe_estimate).exists() else None
     model = fit(work / "sweep", out, fit_options, offgrid=work / "offgrid", fe_estimate=estimate)
     say(f"{out}: {summary_line(model)}; whole build {time.perf_counter() - t0:.0f} s")

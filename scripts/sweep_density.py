@@ -1,12 +1,14 @@
 """What a coarser sweep costs the surrogate: fit on every k-th angle and l-th displacement of one sweep.
 
     python scripts/sweep_density.py --sweep runs/default_v6 --offgrid runs/default_v6/offgrid [--out docs/sweep_density.json]
+        [--grids 1:1 2:1 4:1 1:2 2:2 4:2] [--configs 64:160:1 32:60:1]
 
 A patient build must finish in 30 min (issue #14), and the sweep is most of that time. Its cost is
 paths (one per solved angle) x load steps per path, so a sweep with every 2nd angle and a 0.5 mm step
 costs about a quarter of the paper's 21 x 40. This script measures the other side: it fits the
 default configuration (rank, width as models/default) on the sub-grids of one finished sweep and
-evaluates each fit, float32 ONNX, on cases none of the sub-grids trained on:
+evaluates each fit, float32 ONNX, on cases none of the sub-grids trained on (--configs: each
+rank:width:depth is fitted on every sub-grid, to see whether a coarse grid wants a smaller network):
   off-grid   the sweep's off-grid FE cases (`fem_offline cases`, from rest), inside its valid envelope;
   left out   every snapshot of the full sweep that the sub-grid does not contain (for the full grid: none).
 Errors are the surrogate's against the FE of the same mesh (largest nodal error per region); the FE's
@@ -40,7 +42,18 @@ def main() -> int:
     ap.add_argument("--offgrid", type=Path, required=True)
     ap.add_argument("--out", type=Path, default=Path("docs/sweep_density.json"))
     ap.add_argument("--seeds", type=int, default=2, help="fits per grid (seeds 0..n-1); the worst is reported")
+    ap.add_argument("--grids", nargs="+", default=[f"{a}:{s}" for a, s in GRIDS],
+                    help="angle_stride:displacement_stride sub-grids of the sweep's grid")
+    ap.add_argument("--configs", nargs="+", default=["{rank}:{width}:{depth}".format(**DEFAULT)],
+                    help="rank:width:depth of the fits (default: models/default's)")
     args = ap.parse_args()
+    try:
+        grids = [tuple(int(v) for v in g.split(":")) for g in args.grids]
+        configs = [dict(zip(("rank", "width", "depth"), (int(v) for v in c.split(":")))) for c in args.configs]
+    except ValueError:
+        ap.error("--grids takes angle_stride:displacement_stride, --configs rank:width:depth (integers)")
+    if any(len(g) != 2 or min(g) < 1 for g in grids) or any(len(c) != 3 or min(c.values()) < 1 for c in configs):
+        ap.error("--grids takes angle_stride:displacement_stride, --configs rank:width:depth (integers >= 1)")
 
     sweep = read_sweep(args.sweep)
     data, envelope, _ = valid_part(sweep)
@@ -53,7 +66,7 @@ def main() -> int:
     print(f"{args.sweep}: {len(data)} snapshots ({n_disps} displacements x {n_angles} angles), {len(sweep.mesh.nodes)} "
           f"nodes; {len(og_in)} off-grid cases", flush=True)
     rows = []
-    for a, s in GRIDS:
+    for (a, s), config in ((g, c) for g in grids for c in configs):
         mask = sub_grid(data.inputs, a, s) & (data.inputs[:, 0] > 0)
         left = ~mask & (data.inputs[:, 0] > 0)
         _, train_in, train_rows = training_set(data.select(mask), ())  # nothing held out: the rest of the grid is
@@ -61,8 +74,8 @@ def main() -> int:
         t = []
         for seed in range(args.seeds):
             t0 = time.perf_counter()
-            fitted = fit_surrogate(train_in, train_rows, FitOptions(rank=min(DEFAULT["rank"], len(train_in) - 1),
-                                                                     width=DEFAULT["width"], depth=DEFAULT["depth"], seed=seed))
+            fitted = fit_surrogate(train_in, train_rows, FitOptions(rank=min(config["rank"], len(train_in) - 1),
+                                                                     width=config["width"], depth=config["depth"], seed=seed))
             t.append(time.perf_counter() - t0)
             session = onnx_session(fitted.onnx_bytes())
             for name, (x, ref) in {"offgrid": (og_in, og_ref),
@@ -74,17 +87,19 @@ def main() -> int:
         row = {"angle_stride": a, "displacement_stride": s, "snapshots": int(mask.sum()), "angles": n_paths,
                "angle_step_deg": float(np.diff(np.unique(train_in[:, 1])).max()),
                "displacement_step_mm": float(np.diff(np.unique(np.r_[0.0, train_in[:, 0]])).max()),
-               "n_left_out": int(left.sum()), "rank": min(DEFAULT["rank"], len(train_in) - 1),
+               "n_left_out": int(left.sum()), "rank": min(config["rank"], len(train_in) - 1),
+               "width": config["width"], "depth": config["depth"],
                "fit_s": float(np.median(t)), **worst}
         rows.append(row)
         og, lo = worst["offgrid"], worst["left_out"]
         print(f"  {row['angle_step_deg']:g} deg x {row['displacement_step_mm']:g} mm ({row['snapshots']} snapshots, "
+              f"rank {row['rank']} x {config['depth']}x{config['width']}, "
               f"{n_paths} angles): off-grid markers {og['markers']:.4f} / surface {og['prostate_surface']:.4f} / all "
               f"{og['all_nodes']:.4f} mm" + (f"; left-out grid markers {lo['markers']:.4f} / surface "
                                              f"{lo['prostate_surface']:.4f} / all {lo['all_nodes']:.4f} mm" if lo else ""),
               flush=True)
     args.out.write_text(json.dumps({"sweep": str(args.sweep), "offgrid": str(args.offgrid), "n_offgrid": len(og_in),
-                                    "seeds": args.seeds, "config": DEFAULT, "rows": rows}, indent=1) + "\n")
+                                    "seeds": args.seeds, "configs": configs, "rows": rows}, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0
 
