@@ -60,6 +60,7 @@ def test_build_writes_a_model_that_records_its_label_map(built):
     assert model.source.labels == LABELS and model.source.spacing_mm == (voxel, voxel, voxel)
     assert model.source.shape == tuple(int(n / voxel) for n in (100, 80, 90))
     assert model.metrics.offgrid_summary.n_cases == 2
+    assert model.fit.width == 30  # the build's default network (README, "The patient sweep")
     assert lines[0].startswith("[1/3]") and "whole build" in lines[-1]
 
 
