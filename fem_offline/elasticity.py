@@ -22,6 +22,10 @@ This is the P2/P0 element with its constant pressure condensed per tet. At nu = 
 (lambda / mu = 99) the pointwise P2 element is too stiff in volume change on coarse meshes
 (volumetric locking, scripts/locking_check.py); one constraint per tet instead of one per
 quadrature point relieves it. The shear terms (mu) stay pointwise.
+
+Taylor-Hood (solver.volumetric = "taylor_hood"; `pressure` below): the volumetric stress is a given
+pressure p at each quadrature point, interpolated from a P1 field (fem_offline/mixed.py), and the
+kernels here give the shear part and p's terms: P = mu (F - F^-T) + p F^-T, sigma = 2 mu eps + p I.
 """
 
 from __future__ import annotations
@@ -55,24 +59,30 @@ def linear_stiffness(G, W, mu, lam, md: bool = False) -> np.ndarray:
     return K
 
 
-def linear_stress(H, mu, lam, W=None) -> np.ndarray:
-    """sigma = lam tr(eps) I + 2 mu eps, eps = sym(H); with W (mean dilatation) tr(eps) is each tet's mean."""
-    tr = np.trace(H, axis1=2, axis2=3)
-    if W is not None:
-        tr = np.broadcast_to(tet_mean(W, tr)[0][:, None], tr.shape)
+def linear_stress(H, mu, lam, W=None, pressure=None) -> np.ndarray:
+    """sigma = lam tr(eps) I + 2 mu eps, eps = sym(H); with W (mean dilatation) tr(eps) is each tet's mean;
+    with `pressure` (n_tets, n_qp) sigma = 2 mu eps + p I (Taylor-Hood)."""
+    if pressure is None:
+        tr = np.trace(H, axis1=2, axis2=3)
+        if W is not None:
+            tr = np.broadcast_to(tet_mean(W, tr)[0][:, None], tr.shape)
+        pressure = lam[:, None] * tr
     sigma = mu[:, None, None, None] * (H + H.transpose(0, 1, 3, 2))
-    sigma += (lam[:, None] * tr)[:, :, None, None] * np.eye(3)
+    sigma += pressure[:, :, None, None] * np.eye(3)
     return sigma
 
 
-def neo_hookean_stress(H, mu, lam, W=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def neo_hookean_stress(H, mu, lam, W=None, pressure=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First Piola-Kirchhoff stress P, F^-1 and J = det F; J <= 0 gives NaN in P (caller checks).
-    With W, the volumetric stress is the mean dilatation's p_e J F^-T."""
+    With W, the volumetric stress is the mean dilatation's p_e J F^-T; with `pressure`, a function of
+    J giving p at each quadrature point (Taylor-Hood), it is p F^-T."""
     F = H + np.eye(3)
     J = np.linalg.det(F)
     Finv = np.linalg.inv(F)
     with np.errstate(invalid="ignore", divide="ignore"):
-        if W is None:
+        if pressure is not None:
+            vol = pressure(J)
+        elif W is None:
             vol = lam[:, None] * np.log(J)
         else:
             theta = tet_mean(W, J)[0]
@@ -108,12 +118,15 @@ def linear_energy(H, W, mu, lam, md: bool = False) -> float:
     return float(np.sum(w * W) + np.sum(0.5 * lam * V * mean_tr**2))
 
 
-def neo_hookean_tangent(G, W, Finv, J, mu, lam, md: bool = False) -> np.ndarray:
+def neo_hookean_tangent(G, W, Finv, J, mu, lam, md: bool = False, pressure=None) -> np.ndarray:
     """K_e = int G_aj A_ijkl G_bl, A = dP/dF = mu d_ik d_jl + (mu - lam ln J) Fi_li Fi_jk + lam Fi_ji Fi_lk.
 
     With `md` (g = G F^-1, b_e = int J g dX, p_e = lam ln(theta_e) / theta_e):
         K_e = lam (1 - ln theta_e) / (theta_e^2 V_e) b_e b_e^T + int p_e J g_ai g_bk
               + int (mu - p_e J) g_ak g_bi + mu M_ab d_ik.
+
+    With `pressure` p (n_tets, n_qp), at fixed p (Taylor-Hood; the pressure's own coupling is mixed.py's):
+        K_e = int (mu - p) g_ak g_bi + mu M_ab d_ik.
 
     Each term is an outer product summed over quadrature points, written as batched matmuls over
     (element, 30 x q) blocks, and summed in place into the first: no temporary as large as K, which
@@ -124,7 +137,10 @@ def neo_hookean_tangent(G, W, Finv, J, mu, lam, md: bool = False) -> np.ndarray:
     e, q = g.shape[:2]
     gW = g * W[:, :, None, None]
     flat = g.reshape(e, q, 30)
-    if md:
+    if pressure is not None:
+        c = mu[:, None] - pressure
+        K = np.zeros((e, 30, 30))
+    elif md:
         theta, V = tet_mean(W, J)
         pJ = (lam * np.log(theta) / theta)[:, None] * J  # (e, q)
         c = mu[:, None] - pJ

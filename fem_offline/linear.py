@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import elasticity as el
+from . import mixed
 from .assembly import apply_matrix, assemble_matrix
 from .linsolve import factorise, rigid_body_modes
 from .problem import Problem
@@ -34,13 +35,24 @@ class LinearModes(NamedTuple):
 def linear_modes(problem: Problem) -> LinearModes:
     """u_0, U_axis and U_perp: one factorisation of K_II, two unit solves (and one for gravity)."""
     p = problem
-    Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam, p.mean_dilatation)
-    factor = factorise(assemble_matrix(p.pattern, Ke), near_nullspace=rigid_body_modes(p.mesh.nodes)[p.free])
+    if p.taylor_hood:  # shear stiffness + the pressure's G^T M^-1 G, solved through the saddle point (mixed.py)
+        Ke = el.linear_stiffness(p.G, p.W, p.mu, np.zeros_like(p.lam))
+        G = p.pressure.coupling(p.W, p.G, p.n_dofs)
+        factor = mixed.Tangent(assemble_matrix(p.pattern, Ke), G[:, p.free].tocsr(), p.pressure).factorise()
+
+        def apply(v):
+            return apply_matrix(p.pattern, Ke, v) + mixed.reduced_product(p.pressure, G, v)
+    else:
+        Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam, p.mean_dilatation)
+        factor = factorise(assemble_matrix(p.pattern, Ke), near_nullspace=rigid_body_modes(p.mesh.nodes)[p.free])
+
+        def apply(v):
+            return apply_matrix(p.pattern, Ke, v)
     fields = []
     for beta in (0.0, 90.0):
         g = p.dirichlet(1.0, beta)
         u = g.copy()
-        u[p.free] = factor.solve(-apply_matrix(p.pattern, Ke, g)[p.free])
+        u[p.free] = factor.solve(-apply(g)[p.free])
         fields.append(u)
     u0 = np.zeros(p.n_dofs)
     if p.body_force is not None:

@@ -50,10 +50,13 @@ class _Pardiso:
     precondition CG (newton.py), whose tolerance (1e-2) is far above their 1e-7 relative residual.
     """
 
-    def __init__(self, A: sp.csr_matrix, mtype: int, single: bool):
+    def __init__(self, A: sp.csr_matrix, mtype: int, single: bool, matching: bool = False):
         self._ps = PyPardisoSolver(mtype=mtype)
         for key, value in IPARM.items():
             self._ps.set_iparm(key, value)
+        if matching:  # symmetric scaling and weighted matching (iparm 11, 13): MKL's advice for saddle points
+            self._ps.set_iparm(11, 1)
+            self._ps.set_iparm(13, 1)
         self._ps.set_iparm(28, int(single))
         self.dtype = np.float32 if single else np.float64
         self.mtype, self.n = mtype, A.shape[0]

@@ -19,6 +19,7 @@ from scipy.sparse.linalg import LinearOperator, cg
 
 from . import contact as ct
 from . import elasticity as el
+from . import mixed
 from .assembly import apply_matrix, assemble_matrix, assemble_vector
 from .linsolve import Factor, factorise, rigid_body_modes
 from .problem import Problem
@@ -94,12 +95,15 @@ class Eval(NamedTuple):
     Finv: np.ndarray | None = None
     J: np.ndarray | None = None
     contact: ct.State | None = None
+    pressure: np.ndarray | None = None  # Taylor-Hood: p at the quadrature points (n_tets, n_qp)
 
 
 def residual(p: Problem, u: np.ndarray) -> Eval:
     """Residual r = f_int(u) - f_ext (n_dofs,), min det F and the potential Pi(u); r is None if det F <= 0."""
     H = el.displacement_gradient(p.G, p.element_displacement(u))
     work = p.body_force @ u if p.body_force is not None else 0.0
+    if p.taylor_hood:
+        return _residual_taylor_hood(p, u, H, work)
     if p.nonlinear:
         P, Finv, J = el.neo_hookean_stress(H, p.mu, p.lam, p.W if p.mean_dilatation else None)
         min_j = float(J.min())
@@ -120,8 +124,52 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
     return Eval(r, min_j, pi, Finv, J, touch)
 
 
-def _tangent(p: Problem, ev: Eval, exact_contact: bool = False) -> np.ndarray:
+def _residual_taylor_hood(p: Problem, u: np.ndarray, H: np.ndarray, work: float) -> Eval:
+    """residual() for the Taylor-Hood element: the pressure projected from ln J (tr eps), then the stress (mixed.py)."""
+    zero = np.zeros_like(p.lam)
+    projected = {}
+
+    def pressure(J):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            projected["b"], _, projected["q"] = p.pressure.project(p.W, np.log(J))
+        return projected["q"]
+
     if p.nonlinear:
+        P, Finv, J = el.neo_hookean_stress(H, p.mu, zero, pressure=pressure)
+        min_j = float(J.min())
+        if not min_j > 0:
+            return Eval(None, min_j, np.inf)
+        b, q = projected["b"], projected["q"]
+        pi = el.neo_hookean_energy(H, J, p.W, p.mu, zero) + 0.5 * b @ p.pressure.mass_factor.solve(b) - work
+    else:
+        b, _, q = p.pressure.project(p.W, np.trace(H, axis1=2, axis2=3))
+        P, min_j, Finv, J = el.linear_stress(H, p.mu, zero, pressure=q), 1.0, None, None
+        pi = el.linear_energy(H, p.W, p.mu, zero) + 0.5 * b @ p.pressure.mass_factor.solve(b) - work
+    r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
+    if p.body_force is not None:
+        r -= p.body_force
+    touch = None
+    if p.contact is not None:
+        touch = ct.evaluate(p.contact, u, p.contact_load)
+        r += ct.scatter(p.contact, touch.force, p.n_dofs)
+        pi += touch.energy
+    return Eval(r, min_j, pi, Finv, J, touch, q)
+
+
+def _coupling(p: Problem, ev: Eval):
+    """Taylor-Hood's G = db/du (all DOFs): int N_a dN_n/dx_i, spatial gradients under finite strain."""
+    grad = p.G if ev.Finv is None else np.matmul(p.G, ev.Finv)
+    return p.pressure.coupling(p.W, grad, p.n_dofs)
+
+
+def _tangent(p: Problem, ev: Eval, exact_contact: bool = False) -> np.ndarray:
+    if p.taylor_hood:
+        zero = np.zeros_like(p.lam)
+        if p.nonlinear:
+            Ke = el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, zero, pressure=ev.pressure)
+        else:
+            Ke = el.linear_stiffness(p.G, p.W, p.mu, zero)
+    elif p.nonlinear:
         Ke = el.neo_hookean_tangent(p.G, p.W, ev.Finv, ev.J, p.mu, p.lam, p.mean_dilatation)
     else:
         Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam, p.mean_dilatation)
@@ -152,6 +200,8 @@ def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> t
             return du, stats
     if cache.factor is not None:
         cache.factor = cache.factor.refactor(K)
+    elif isinstance(K, mixed.Tangent):
+        cache.factor = K.factorise()
     else:
         cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL,
                                  single=SINGLE_FACTORS and not p.superposable)
@@ -197,14 +247,19 @@ def newton(problem: Problem, u: np.ndarray, g: np.ndarray, cache: FactorCache,
         if it == cfg.max_iterations:
             break
         Ke = _tangent(p, ev, exact_contact=res < EXACT_CONTACT_BELOW)
-        rhs = -(ev.r + apply_matrix(p.pattern, Ke, du_d))[free]
+        coupled = apply_matrix(p.pattern, Ke, du_d)
         K = assemble_matrix(p.pattern, Ke)
+        if p.taylor_hood:  # the reduced Hessian K + G^T M^-1 G, never formed (mixed.py)
+            G = _coupling(p, ev)
+            coupled += mixed.reduced_product(p.pressure, G, du_d)
+            K = mixed.Tangent(K, G[:, free].tocsr(), p.pressure)
+        rhs = -(ev.r + coupled)[free]
         step = du_d.copy()
         step[free], stats = _solve_linearised(p, cache, K, rhs, stats)
         try:
             u, ev = _line_search(p, u, step, ev, prescribed_done, stats)
         except ConvergenceError:
-            if not getattr(cache.factor, "single", False):
+            if not getattr(cache.factor, "single", False) or p.taylor_hood:
                 raise
             # The correction came through float32 factors (CG to CG_RTOL, or their own solve). On an
             # ill-conditioned tangent (a stiffness contrast of 1e4) it can fail to lower the energy

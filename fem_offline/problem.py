@@ -13,7 +13,7 @@ import numpy as np
 
 from . import contact as ct
 from . import elasticity as el
-from . import guide
+from . import guide, mixed
 from .assembly import Pattern, build_pattern
 from .boundary import constraints
 from .gravity import body_force
@@ -38,6 +38,7 @@ class Problem:
     active: np.ndarray | None = None  # (n_tets,) bool: the tets assembled (not all-constrained)
     contact: ct.Surface | None = None  # effects.guide_contact: the lumen faces the tip can touch
     contact_load: ct.Load | None = None  # where the tip is now (set by `at_guide`)
+    pressure: mixed.Pressure | None = None  # solver.volumetric = "taylor_hood": the P1 pressure space
 
     @property
     def n_dofs(self) -> int:
@@ -55,6 +56,11 @@ class Problem:
     def mean_dilatation(self) -> bool:
         """solver.volumetric = "mean_dilatation": the volumetric term per tet (elasticity.py)."""
         return self.scene.solver.volumetric == "mean_dilatation"
+
+    @property
+    def taylor_hood(self) -> bool:
+        """solver.volumetric = "taylor_hood": P2/P1 with the pressure eliminated (mixed.py)."""
+        return self.pressure is not None
 
     @property
     def superposable(self) -> bool:
@@ -111,5 +117,13 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     if scene.effects.gravity:
         N = np.stack([basis.basis[a][0].value for a in range(10)])[:, active]  # (10, n_active, n_qp)
         body = body_force(N=N, W=W, density_kg_m3=rho, pattern=pattern)
-    problem = Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide_dofs, weight, body, active, surface)
+    pressure = None
+    if scene.solver.volumetric == "taylor_hood":
+        from skfem import ElementTetP1
+
+        p1 = Basis(basis.mesh, ElementTetP1(), quadrature=basis.quadrature)  # the same points
+        N = np.stack([np.asarray(p1.basis[a][0]) for a in range(4)], axis=-1)[active]  # (n_active, n_qp, 4)
+        pressure = mixed.pressure_space(p1.element_dofs.T[active], N, W, mesh.tissue[active], lam, pattern.edofs)
+    problem = Problem(scene, mesh, G, W, mu, lam, pattern, fixed, guide_dofs, weight, body, active, surface,
+                      pressure=pressure)
     return problem.at_guide(0.0, 0.0)

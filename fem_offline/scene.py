@@ -234,8 +234,9 @@ class Solver(_Strict):
     max_halvings: Annotated[int, Field(ge=0, le=12)] = 6
     max_step_mm: Annotated[float, Field(gt=0, le=10)] = 0.25  # guide increment per load step
     # "pointwise": the P2 element as it is; "mean_dilatation": the volumetric term at each tet's mean
-    # volume ratio (P2/P0, against volumetric locking at nu -> 0.5; fem_offline/elasticity.py)
-    volumetric: Literal["pointwise", "mean_dilatation"] = "pointwise"
+    # volume ratio (P2/P0, against volumetric locking at nu -> 0.5; fem_offline/elasticity.py);
+    # "taylor_hood": a P1 pressure per tissue, eliminated in Newton (P2/P1, fem_offline/mixed.py)
+    volumetric: Literal["pointwise", "mean_dilatation", "taylor_hood"] = "pointwise"
 
 
 SNAP_MM = 2.0  # default guide.snap_mm of a label-map scene: about two voxels of a clinical T2 segmentation

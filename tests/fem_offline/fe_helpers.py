@@ -4,6 +4,7 @@ import numpy as np
 from skfem import Basis, ElementTetP2
 
 from fem_offline import elasticity as el
+from fem_offline import mixed
 from fem_offline.assembly import apply_matrix, assemble_matrix, assemble_vector, build_pattern
 from fem_offline.linsolve import Factor
 from fem_offline.materials import lame_kpa
@@ -21,12 +22,30 @@ def lame_params(youngs, poisson, n):
     return np.full(n, mu), np.full(n, lam)
 
 
-def solve_linear(tets, n_nodes, G, W, mu, lam, fixed_dofs, g, f_ext, md=False):
-    """u with u[fixed] = g[fixed] and K u = f_ext on the free DOFs (md: mean dilatation)."""
+def taylor_hood_space(basis, tets, W, lam, pattern, tissue=None):
+    """The P1 pressure space (fem_offline/mixed.py) of a plain skfem P2 basis' mesh."""
+    from skfem import ElementTetP1
+
+    p1 = Basis(basis.mesh, ElementTetP1(), quadrature=basis.quadrature)
+    N = np.stack([np.asarray(p1.basis[a][0]) for a in range(4)], axis=-1)
+    tissue = np.zeros(len(tets), int) if tissue is None else tissue
+    return mixed.pressure_space(p1.element_dofs.T, N, W, tissue, lam, pattern.edofs)
+
+
+def solve_linear(tets, n_nodes, G, W, mu, lam, fixed_dofs, g, f_ext, md=False, basis=None, tissue=None):
+    """u with u[fixed] = g[fixed] and K u = f_ext on the free DOFs (md: mean dilatation; with the
+    P2 `basis` given, Taylor-Hood P2/P1 with a pressure per `tissue`, solved through its saddle point)."""
     free = np.setdiff1d(np.arange(3 * n_nodes), fixed_dofs)
     pattern = build_pattern(tets, n_nodes, free)
-    Ke = el.linear_stiffness(G, W, mu, lam, md)
     u = np.where(np.isin(np.arange(3 * n_nodes), fixed_dofs), g, 0.0)
+    if basis is not None:
+        Ke = el.linear_stiffness(G, W, mu, np.zeros_like(lam))
+        pressure = taylor_hood_space(basis, tets, W, lam, pattern, tissue)
+        C = pressure.coupling(W, G, 3 * n_nodes)
+        rhs = f_ext - apply_matrix(pattern, Ke, u) - mixed.reduced_product(pressure, C, u)
+        u[free] = mixed.Tangent(assemble_matrix(pattern, Ke), C[:, free].tocsr(), pressure).factorise().solve(rhs[free])
+        return u, pattern
+    Ke = el.linear_stiffness(G, W, mu, lam, md)
     rhs = f_ext - apply_matrix(pattern, Ke, u)
     u[free] = Factor(assemble_matrix(pattern, Ke)).solve(rhs[free])
     return u, pattern
@@ -61,7 +80,7 @@ def _octant_shell(a, b, size):
     return MeshTet(p.T.copy(), t.T.copy())
 
 
-def lame_sphere_error(nu, size=0.4, md=False):
+def lame_sphere_error(nu, size=0.4, md=False, taylor_hood=False):
     """Max relative radial-displacement error of the thick sphere a=1, b=2 under internal pressure p:
     u(r) = p a^3 / (E (b^3 - a^3)) [(1 - 2 nu) r + (1 + nu) b^3 / (2 r^2)].
     Symmetry planes of the octant: u_n = 0. Checked at vertices, which lie on the true spheres."""
@@ -69,7 +88,7 @@ def lame_sphere_error(nu, size=0.4, md=False):
 
     a, b, E, p = 1.0, 2.0, 1.0, 1.0
     mesh = _octant_shell(a, b, size)
-    nodes, tets, G, W, _ = p2_data(mesh)
+    nodes, tets, G, W, basis = p2_data(mesh)
     mu, lam = lame_params(E, nu, len(tets))
     inner = mesh.facets_satisfying(lambda x: np.linalg.norm(x, axis=0) < a + 1e-6, boundaries_only=True)
     fb = FacetBasis(mesh, ElementTetP2(), facets=inner, intorder=4)
@@ -78,7 +97,7 @@ def lame_sphere_error(nu, size=0.4, md=False):
         form = LinearForm(lambda v, w, i=i: p * w.x[i] / np.linalg.norm(w.x, axis=0) * v)
         f[i::3] = form.assemble(fb)
     fixed = np.concatenate([3 * np.flatnonzero(np.abs(nodes[:, i]) < 1e-9) + i for i in range(3)])
-    u, _ = solve_linear(tets, len(nodes), G, W, mu, lam, fixed, np.zeros_like(f), f, md)
+    u, _ = solve_linear(tets, len(nodes), G, W, mu, lam, fixed, np.zeros_like(f), f, md, basis if taylor_hood else None)
     r = np.linalg.norm(nodes, axis=1)
     ur = np.einsum("ij,ij->i", u.reshape(-1, 3), nodes / r[:, None])
     exact = p * a**3 / (E * (b**3 - a**3)) * ((1 - 2 * nu) * r + (1 + nu) * b**3 / (2 * r**2))
