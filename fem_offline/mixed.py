@@ -123,10 +123,15 @@ class SaddleFactor:
 
             self._lu = splu(A.tocsc())
             return
+        self._A = self._upper(A)
+        _point_pypardiso_at_mkl()
+        self._pardiso = _Pardiso(self._A, -2, False, matching=True)
+
+    @staticmethod
+    def _upper(A):
         A = sp.triu(A, format="csr")
         A.sort_indices()
-        _point_pypardiso_at_mkl()
-        self._pardiso = _Pardiso(A, -2, False, matching=True)
+        return A
 
     def _solve(self, b):
         rhs = np.concatenate([b, np.zeros(self._tangent.pressure.n)])
@@ -144,7 +149,15 @@ class SaddleFactor:
         return x
 
     def refactor(self, tangent: Tangent) -> SaddleFactor:
-        return SaddleFactor(tangent)
+        """Factorise a later tangent, reusing the symbolic analysis (PARDISO phase 22) when the pattern is the same."""
+        if PyPardisoSolver is None:
+            return SaddleFactor(tangent)
+        A = self._upper(tangent.saddle())
+        if A.nnz != self._A.nnz or not np.array_equal(A.indices, self._A.indices):
+            return SaddleFactor(tangent)
+        self._pardiso.factor(A.data, phase=22)
+        self._A, self._tangent = A, tangent
+        return self
 
     def __del__(self):
         if PyPardisoSolver is not None and hasattr(self, "_pardiso"):

@@ -113,7 +113,7 @@ def main() -> int:
     ap.add_argument("--guide", choices=("contact", "glued"),
                     help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: the scene's)")
     ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
-    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation"),
+    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation", "taylor_hood"),
                     help="the element's volumetric term (solver.volumetric; default: the scene's)")
     ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))

@@ -20,7 +20,8 @@ Also per level: the tet count and its ratio to the next (a geometric family refi
 more tets) and each tissue's median tet edge, to see whether every part of the mesh refines by r.
 
 --volumetric mean_dilatation solves the same levels with the volumetric term taken per tet
-(solver.volumetric, fem_offline/elasticity.py), the remedy locking calls for.
+(solver.volumetric, fem_offline/elasticity.py), a first remedy; --volumetric taylor_hood with a P1
+pressure per tissue (P2/P1, fem_offline/mixed.py), one that keeps the P2 element's order.
 
 Each (nu, level) result is written to --out as it finishes; a rerun resumes. The table and the
 GCI of the three finest levels per nu go to --json.
@@ -121,8 +122,9 @@ def main() -> None:
     ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917, 0.455])
     ap.add_argument("--poisson", type=float, nargs="+", default=[0.495, 0.45])
     ap.add_argument("--case", type=float, nargs=2, default=[2.0, 0.0], metavar=("D_MM", "BETA_DEG"))
-    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation"), default="pointwise",
-                    help="the element's volumetric term (solver.volumetric): the P2 element as it is, or per tet")
+    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation", "taylor_hood"), default="pointwise",
+                    help="the element's volumetric term (solver.volumetric): the P2 element as it is, per tet, "
+                         "or a P1 pressure (Taylor-Hood)")
     ap.add_argument("--rtol", type=float, default=1e-8)
     ap.add_argument("--contact-tol-mm", type=float, default=0.0005)
     ap.add_argument("--meshes", type=Path, default=Path("runs/convergence_resolve"),

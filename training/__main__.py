@@ -1,4 +1,5 @@
-"""Command line: `python -m training fit --snapshots DIR --out models/NAME`; bad input gets one line, exit code 2."""
+"""Command line: `python -m training fit --snapshots DIR --out models/NAME`, `python -m training restamp --model
+models/NAME --fe-error JSON`; bad input gets one line, exit code 2."""
 
 from __future__ import annotations
 
@@ -35,12 +36,30 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=number("--seed", int), default=0)
     f.add_argument("--test-case", type=_case, action="append",
                    help="held-out snapshot D/A (repeatable; default: the paper's five)")
+    r = sub.add_parser("restamp", help="stamp a model folder's accuracy again with another FE estimate, without refitting")
+    r.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
+    r.add_argument("--fe-error", required=True, type=Path,
+                   help="scripts/model_vs_converged.py's JSON for this model (docs/fe_error_default.json)")
     return ap
+
+
+def _restamp(args) -> int:
+    from .fit import restamp, summary_line
+
+    try:
+        manifest = restamp(args.model, args.fe_error)
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.model}: {summary_line(manifest)}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if args.command == "restamp":
+        return _restamp(args)
     from .fit import PAPER_TEST_CASES, FitOptions, fit, summary_line
 
     options = FitOptions(rank=args.rank, width=args.width, depth=args.depth, max_iterations=args.iterations,

@@ -160,6 +160,46 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
     return bands, text
 
 
+def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, float], str]:
+    """The FE discretisation error of a model's mesh bounded through the model itself, from
+    scripts/model_vs_converged.py's JSON: per region, max over the cases of |model - u_fine| + GCI of
+    another element's converged estimate, plus the model's own surrogate error (the triangle inequality:
+    its FE is within the surrogate error of the model)."""
+    import json
+
+    data = json.loads(Path(path).read_text())
+    if data.get("kind") != "model_vs_converged":
+        raise ValueError(f"--fe-error: {path} is not scripts/model_vs_converged.py's output")
+    mesh = data.get("model_mesh", {})
+    if (mesh.get("n_tets"), mesh.get("n_nodes")) != (len(model.mesh.tets), len(model.mesh.nodes)):
+        raise ValueError(f"--fe-error: {path} compares a model on {mesh.get('n_tets')} tets / {mesh.get('n_nodes')} "
+                         f"nodes, not this one ({len(model.mesh.tets)} / {len(model.mesh.nodes)})")
+    surrogate = {k: r.surrogate_mm for k, r in model.manifest.accuracy.regions.items()}
+    bands = {k: v + surrogate[k] for k, v in data["max_over_cases"].items() if k in surrogate}
+    levels = ", ".join(f"{lv['n_tets']:,}" for lv in data["levels"])
+    text = (f"FE discretisation: this model against the converged estimate of a {data['element'].replace('_', '-')} "
+            f"grid-convergence study (the fine level of {levels} tets plus its grid convergence index, Fs 1.25, point by "
+            f"point), max over the cases {', '.join(data['cases'])}, plus the surrogate error, which bounds this mesh's FE "
+            f"from the model's answer (scripts/model_vs_converged.py, {Path(path).name})")
+    return bands, text
+
+
+def restamp(model: Path, fe_error: Path) -> folder.ModelManifest:
+    """A model folder's accuracy (manifest, report.md) stamped again with another FE estimate, without
+    refitting: the ONNX graph and the mesh stay as they are, byte for byte."""
+    from contracts.files import atomic_write_text, sha256
+
+    from .report import table3_markdown
+
+    current = folder.read_model_folder(model)
+    surrogate = {k: r.surrogate_mm for k, r in current.manifest.accuracy.regions.items()}
+    manifest = current.manifest.model_copy(update={"accuracy": _accuracy(surrogate, fe_through_model(fe_error, current))})
+    atomic_write_text(Path(model) / "report.md", table3_markdown(manifest, PAPER_TABLE3))
+    manifest = manifest.model_copy(update={"files": {**manifest.files, "report.md": sha256(Path(model) / "report.md")}})
+    atomic_write_text(Path(model) / "manifest.json", manifest.model_dump_json(indent=2) + "\n")
+    return manifest
+
+
 def _accuracy(surrogate: dict[str, float], fe: tuple[dict[str, float], str] | None) -> folder.Accuracy:
     if fe is None:
         return folder.Accuracy(reference="the surrogate against the FE of its own mesh only; the FE discretisation "

@@ -176,3 +176,45 @@ def test_fe_band_is_the_studys_band_of_the_model_mesh_level(tmp_path):
     assert medium == {"markers": 0.4, "prostate_surface": 1.5, "all_nodes": 2.0} and "medium level" in text
     with pytest.raises(ValueError, match="neither of"):
         fe_discretisation(study, mesh(100))
+
+
+def _model_vs_converged(model, tmp_path, gaps, n_tets=None):
+    folder = read_model_folder(model)
+    data = {"kind": "model_vs_converged", "model": str(model), "element": "taylor_hood",
+            "levels": [{"n_tets": n, "n_nodes": 2 * n} for n in (100, 200, 400)],
+            "model_mesh": {"n_tets": n_tets or len(folder.mesh.tets), "n_nodes": len(folder.mesh.nodes)},
+            "cases": {"10 mm, 0 deg": {}}, "max_over_cases": gaps}
+    path = tmp_path / "fe_error.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_restamp_changes_only_the_accuracy_and_keeps_the_folder_valid(tiny_model, tmp_path):
+    """`training restamp` stamps the FE error through the model (measured gap + the surrogate's own error),
+    rewrites report.md and the manifest's sha256 of it, leaves the ONNX graph and the mesh byte for byte,
+    and the folder still reads; a JSON of another mesh is refused with one line, exit 2."""
+    import shutil
+
+    from contracts.files import sha256
+
+    model = tmp_path / "m"
+    shutil.copytree(tiny_model, model)
+    before = read_model_folder(model).manifest
+    gaps = {"markers": 0.12, "prostate_surface": 0.31, "all_nodes": 0.9}
+    run = _cli("restamp", "--model", model, "--fe-error", _model_vs_converged(model, tmp_path, gaps))
+    assert run.returncode == 0, run.stderr
+    after = read_model_folder(model).manifest
+    for name, gap in gaps.items():
+        r = after.accuracy.regions[name]
+        assert r.surrogate_mm == before.accuracy.regions[name].surrogate_mm
+        assert r.fe_discretisation_mm == pytest.approx(gap + r.surrogate_mm)
+        assert r.end_to_end_mm >= r.surrogate_mm + r.fe_discretisation_mm - 1e-12
+    assert "taylor-hood" in after.accuracy.reference
+    assert f"{after.accuracy.regions['markers'].end_to_end_mm:.3f}" in (model / "report.md").read_text()
+    assert f"end to end at the markers {after.accuracy.regions['markers'].end_to_end_mm:.3f}" in run.stdout
+    for name in ("model.onnx", "mesh.npz"):
+        assert after.files[name] == before.files[name] == sha256(model / name)
+    assert after.model_dump(exclude={"accuracy", "files"}) == before.model_dump(exclude={"accuracy", "files"})
+    wrong = _cli("restamp", "--model", model, "--fe-error", _model_vs_converged(model, tmp_path, gaps, n_tets=7))
+    assert wrong.returncode == 2 and wrong.stderr.startswith("error: --fe-error:") and "Traceback" not in wrong.stderr
+    assert read_model_folder(model).manifest == after

@@ -1,0 +1,117 @@
+"""A served model against the converged estimate of another element's grid-convergence study.
+
+    python scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
+        --scales 1.3 1 0.769 [--json docs/fe_error_default.json]
+
+The grid-convergence study (scripts/convergence_study.py, here with solver.volumetric = "taylor_hood")
+keeps each level's mesh and each case's solution under --study. Its three levels, interpolated at
+the model mesh's own nodes, give at every node the fine level's answer u1 and its GCI band (Roache,
+one order per case from the mean |u|, fem_offline.convergence.field_gci). The model's answer m at
+the same case (ONNX, float32, the whole mesh) is then at most
+
+    e(x) = |m(x) - u1(x)| + GCI(x)
+
+from the converged estimate: measured end to end, surrogate and FE together. Its FE is within
+e(x) + the surrogate's own error (triangle inequality; the surrogate error is the manifest's, held-out
+cases), which is what `python -m training restamp` stamps as the FE discretisation error, so that the
+stated end-to-end bound (surrogate + FE) is never below what was measured.
+
+Per region of the model (markers, prostate surface, every node; the surface within 8 mm of the tip
+apart) and per case (the hard cases the study solved) it writes the max of e, of |m - u1| and of the
+band, and the max over the cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from contracts.mesh import read_mesh
+from contracts.model import onnx_session, read_model_folder
+from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, at_points, field_gci
+
+
+def level_solution(study: Path, scale: float, case: tuple[float, float], points: np.ndarray) -> np.ndarray:
+    """The study's solution of `case` on level `scale`, at `points` (k, 3); refuses an unfinished path."""
+    d, beta = case
+    path = study / f"path_{scale:g}_{d:g}_{beta:g}.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: the study has not solved {d:g} mm, {beta:g} deg on level {scale:g}")
+    with np.load(path) as z:
+        if float(z["d_mm"]) < d - 1e-9:
+            raise ValueError(f"{path}: the path stopped at {float(z['d_mm']):g} mm of {d:g}; resume the study first")
+        u = z["u"].reshape(-1, 3)
+    return at_points(read_mesh(study / f"mesh_{scale:g}.npz"), u, points)
+
+
+def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
+    folder = read_model_folder(model)
+    manifest, mesh = folder.manifest, folder.mesh
+    session = onnx_session(model / "model.onnx")
+    tip = np.asarray(manifest.scene.spec["guide"]["tip_mm"])
+    surface = np.asarray(mesh.node_sets["prostate_surface"])
+    near = np.linalg.norm(mesh.nodes[surface] - tip, axis=1) < NEAR_TIP_MM
+    regions = {"markers": np.asarray(mesh.node_sets["markers"]), "prostate_surface": surface,
+               "prostate_surface_near_tip": surface[near], "prostate_surface_rest": surface[~near],
+               "all_nodes": np.arange(len(mesh.nodes))}
+    ratio = (scales[0] / scales[1], scales[1] / scales[2])
+    out = {"cases": {}}
+    for case in cases:
+        u3, u2, u1 = (level_solution(study, s, case, mesh.nodes) for s in scales)
+        band, order = field_gci(u3, u2, u1, ratio)
+        m = session.run(None, {"guide": np.array([case], np.float32)})[0][0].astype(np.float64)
+        gap = np.linalg.norm(m - u1, axis=1)
+        e = gap + band
+        out["cases"][f"{case[0]:g} mm, {case[1]:g} deg"] = {
+            "mean_kind": order.kind, "mean_order": None if not np.isfinite(order.order) else float(order.order),
+            "regions": {k: {"end_to_end_max_mm": float(e[ids].max()), "gap_max_mm": float(gap[ids].max()),
+                            "band_max_mm": float(band[ids].max()), "end_to_end_mean_mm": float(e[ids].mean())}
+                        for k, ids in regions.items()},
+            "markers_model_mm": np.linalg.norm(m[regions["markers"]], axis=1).round(4).tolist(),
+            "markers_fine_mm": np.linalg.norm(u1[regions["markers"]], axis=1).round(4).tolist()}
+    out["max_over_cases"] = {k: max(c["regions"][k]["end_to_end_max_mm"] for c in out["cases"].values())
+                             for k in regions}
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", type=Path, default=Path("models/default"))
+    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),
+                    help="a convergence study's folder (meshes and path checkpoints)")
+    ap.add_argument("--scales", type=float, nargs=3, default=[1.3, 1.0, 0.769], help="its three levels, coarsest first")
+    ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG", help="default: the hard cases")
+    ap.add_argument("--element", default="taylor_hood", help="the study's solver.volumetric, for the record")
+    ap.add_argument("--json", type=Path, default=Path("docs/fe_error_default.json"))
+    args = ap.parse_args()
+    cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
+    result = compare(args.model, args.study, args.scales, cases)
+    levels = []
+    for s in args.scales:
+        mesh = read_mesh(args.study / f"mesh_{s:g}.npz")
+        levels.append({"scale": s, "n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes)})
+    model_mesh = read_model_folder(args.model).mesh
+    result = {"kind": "model_vs_converged", "model": str(args.model), "element": args.element, "levels": levels,
+              "model_mesh": {"n_tets": len(model_mesh.tets), "n_nodes": len(model_mesh.nodes)},
+              "command": "python scripts/model_vs_converged.py --model {} --study {} --scales {}{}".format(
+                  args.model, args.study, " ".join(f"{s:g}" for s in args.scales),
+                  (" --cases " + " ".join(args.cases)) if args.cases else ""), **result}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=1) + "\n")
+    for case, row in result["cases"].items():
+        r = row["regions"]
+        print(f"{case}: model vs converged ({args.element}), max |m - u_fine| + GCI: markers {r['markers']['end_to_end_max_mm']:.3f} mm "
+              f"(gap {r['markers']['gap_max_mm']:.3f} + band up to {r['markers']['band_max_mm']:.3f}); prostate surface "
+              f"{r['prostate_surface']['end_to_end_max_mm']:.3f} (near tip {r['prostate_surface_near_tip']['end_to_end_max_mm']:.3f}, "
+              f"rest {r['prostate_surface_rest']['end_to_end_max_mm']:.3f}); every node {r['all_nodes']['end_to_end_max_mm']:.3f}; "
+              f"mean |u| {row['mean_kind']}")
+    print("max over the cases: " + ", ".join(f"{k} {v:.3f} mm" for k, v in result["max_over_cases"].items()))
+    print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
