@@ -92,6 +92,20 @@ def test_stiff_bone_barely_strains_and_the_prostate_converges(contrast_solutions
     assert np.linalg.norm(u[prostate] - u235[prostate], axis=1).max() < 0.02 * peak
 
 
+def test_neo_hookean_energy_keeps_its_precision_at_small_strain_in_a_stiff_tissue():
+    """At |H| ~ 1e-8 in bone-stiff material (mu 6e5 kPa) the neo-Hookean energy is the small-strain one to
+    O(|H|): its round-off does not grow with mu. The textbook mu/2 (tr C - 3) - mu ln J loses eps * mu a
+    point (5e-4 of the energy here), which hid Newton's last energy decrease in the stiffness-contrast path."""
+    from fem_offline import elasticity as el
+
+    rng = np.random.default_rng(3)
+    H = 1e-8 * rng.normal(size=(50, 4, 3, 3))
+    W, mu, lam = np.full((50, 4), 0.25), np.full(50, 6e5), np.full(50, 6e7)
+    J = np.linalg.det(H + np.eye(3))
+    nonlinear, small = el.neo_hookean_energy(H, J, W, mu, lam), el.linear_energy(H, W, mu, lam)
+    assert nonlinear == pytest.approx(small, rel=1e-6)
+
+
 @pytest.mark.slow
 def test_stiffness_contrast_nonlinear_path_converges(tiny_scene, tiny_mesh):
     problem = build_problem(*_with_elastic_pubic_bone(tiny_scene, tiny_mesh, 1.7e5))
