@@ -259,12 +259,12 @@ def newton(problem: Problem, u: np.ndarray, g: np.ndarray, cache: FactorCache,
         try:
             u, ev = _line_search(p, u, step, ev, prescribed_done, stats)
         except ConvergenceError:
-            if not getattr(cache.factor, "single", False) or p.taylor_hood:
+            if not (getattr(cache.factor, "single", False) or getattr(cache.factor, "float32", False)):
                 raise
             # The correction came through float32 factors (CG to CG_RTOL, or their own solve). On an
             # ill-conditioned tangent (a stiffness contrast of 1e4) it can fail to lower the energy
             # where the exact Newton step does: solve exactly with float64 factors, kept from here on.
-            cache.factor = Factor(K)
+            cache.factor = K.factorise(single=False) if isinstance(K, mixed.Tangent) else Factor(K)
             stats = replace(stats, factorizations=stats.factorizations + 1)
             step = du_d.copy()
             step[free] = cache.factor.solve(rhs)
