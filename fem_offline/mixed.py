@@ -33,6 +33,7 @@ element's order.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -168,7 +169,5 @@ class SaddleFactor:
 
     def __del__(self):
         if PyPardisoSolver is not None and hasattr(self, "_pardiso"):
-            import sys
-
-            if sys.meta_path is not None:
+            if sys.meta_path is not None:  # not at interpreter shutdown
                 self._pardiso.free()
