@@ -59,27 +59,29 @@ def markdown(result: dict, command: str, seconds: float, image: str = "convergen
              "with one order per case, that of the mean |u| over every node (its kind is on the \"every node\" row); "
              "where that mean does not converge monotonically, Fs times the larger change between levels. "
              "\"Medium bound\" is how far the medium mesh can be from the converged value: |u_medium - u_fine| + "
-             "the fine GCI vector, point by point.", ""]
-    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound |\n"
-            "|---|---|---|---|---|---|---|---|")
+             "the fine GCI vector, point by point; \"coarse bound\" the same for the coarse mesh.", ""]
+    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound | coarse bound |\n"
+            "|---|---|---|---|---|---|---|---|---|")
     for case, row in result["cases"].items():
         lines += [f"## {case}", "", "Solve time per level: " + ", ".join(f"{s / 60:.1f} min" for s in row["seconds"]), "", head]
         for i, r in enumerate(row["markers"]):
-            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} |")
+            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |")
         for name, r in zip(("prostate centroid", "5 mm in front of the tip", "10 mm in front of the tip"), row["interior"]):
-            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} |")
+            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |")
         for zone in ("near_tip", "rest"):
             z = row[f"surface_{zone}"]
             label = f"surface < {NEAR_TIP_MM:g} mm from the tip" if zone == "near_tip" else "surface, the rest"
             for stat in ("max", "p95", "mean"):
-                lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | | |")
-            g, b = z["gci_mm"], z["bound_medium_mm"]
+                lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | | | |")
+            g, b, c = z["gci_mm"], z["bound_medium_mm"], z["bound_coarse_mm"]
             lines.append(f"| {label}: pointwise band ({z['n_points']} points) | max {g['max']:.3f}, p95 {g['p95']:.3f}, "
-                         f"mean {g['mean']:.3f} | | | | | | max {b['max']:.3f}, p95 {b['p95']:.3f} |")
-        g, b = row["all_nodes"]["gci_mm"], row["all_nodes"]["bound_medium_mm"]
-        lines.append(f"| every node: pointwise band ({row['all_nodes']['n_points']} points) | max {g['max']:.3f}, "
-                     f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {row['all_nodes']['mean_kind']} | | | | | "
-                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} |")
+                         f"mean {g['mean']:.3f} | | | | | | max {b['max']:.3f}, p95 {b['p95']:.3f} | "
+                         f"max {c['max']:.3f}, p95 {c['p95']:.3f} |")
+        a = row["all_nodes"]
+        g, b, c = a["gci_mm"], a["bound_medium_mm"], a["bound_coarse_mm"]
+        lines.append(f"| every node: pointwise band ({a['n_points']} points) | max {g['max']:.3f}, "
+                     f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {a['mean_kind']} | | | | | "
+                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} | max {c['max']:.3f}, p95 {c['p95']:.3f} |")
         lines.append("")
     lines += [f"![convergence]({image})", ""]
     return "\n".join(lines)
@@ -143,7 +145,7 @@ def main() -> int:
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():
-        for level, key in (("fine", "gci"), ("medium", "bound_medium")):
+        for level, key in (("fine", "gci"), ("medium", "bound_medium"), ("coarse", "bound_coarse")):
             m = max(r[f"{key}_vector_mm" if key == "gci" else f"{key}_mm"] for r in row["markers"])
             i = max(r[f"{key}_vector_mm" if key == "gci" else f"{key}_mm"] for r in row["interior"])
             near, rest = row["surface_near_tip"][f"{key}_mm"], row["surface_rest"][f"{key}_mm"]

@@ -51,10 +51,11 @@ class LevelFe:
 
 
 def gci_bands(analysis: dict, level: str = "fine") -> dict[str, float]:
-    """How far the finest level (or, level="medium", the second-finest) is from the converged estimate,
+    """How far the finest level (or, level="medium" / "coarse", the second- / third-finest) is from the converged estimate,
     per region (mm), max over the cases of `analyse`'s result: the finest level's GCI band; for the
-    medium level, pointwise its distance to the finest plus that band (convergence._medium_bound)."""
-    key = {"fine": ("gci_vector_mm", "gci_mm"), "medium": ("bound_medium_mm", "bound_medium_mm")}[level]
+    medium or coarse level, pointwise its distance to the finest plus that band (convergence._medium_bound)."""
+    key = {"fine": ("gci_vector_mm", "gci_mm"), "medium": ("bound_medium_mm", "bound_medium_mm"),
+           "coarse": ("bound_coarse_mm", "bound_coarse_mm")}[level]
     rows = analysis["cases"].values()
     return {"markers": max(max(r[key[0]] for r in row["markers"]) for row in rows),
             "prostate_surface": max(row[f"surface_{z}"][key[1]]["max"] for row in rows for z in ("near_tip", "rest")),
@@ -91,6 +92,8 @@ def level_errors(study: dict) -> list[LevelFe]:
             fe = dict(bands)
         elif this == key[-2]:
             fe = gci_bands(analysis, "medium")
+        elif this == key[-3] and all("bound_coarse_mm" in r for row in analysis["cases"].values() for r in row["markers"]):
+            fe = gci_bands(analysis, "coarse")  # studies analysed since the coarse bound was stored
         else:
             fe = {"markers": _marker_error(lv, finest, analysis)}
         out.append(LevelFe(float(lv["scale"]), int(lv["n_tets"]), int(lv["n_nodes"]), fe, _full_push_seconds(lv)))

@@ -102,3 +102,20 @@ def test_levels_written_to_four_digits_pass_the_ratio_check_and_a_smaller_ratio_
     assert result["cases"]["c"]["markers"][0]["order"] == pytest.approx(2.0, abs=0.01)
     with pytest.raises(ValueError, match="need size ratios"):
         analyse(_raw([1.0, 0.8, 0.64]))  # 1.25
+
+
+def test_coarse_and_medium_bounds_are_the_distance_to_the_fine_level_plus_its_band():
+    """u = (1 + h^2) e_x, limit 1: the fine band is Fs |u1 - 1|, and a coarser level's bound, |u_L - u1| + that
+    band, holds its true error (h_L^2) at every point and in every region (the coarse bound judges
+    models/default, built on a study's coarse level)."""
+    from fem_offline.convergence import SAFETY, analyse
+
+    scales = (1.69, 1.3, 1.0)
+    row = analyse(_raw(list(scales)))["cases"]["c"]
+    band = SAFETY * 1.0
+    for level, h in (("coarse", scales[0]), ("medium", scales[1])):
+        bound, truth = (1 + h * h - 2.0) + band, h * h
+        assert all(r[f"bound_{level}_mm"] == pytest.approx(bound) for r in row["markers"] + row["interior"])
+        for region in ("all_nodes", "surface_near_tip", "surface_rest"):
+            assert row[region][f"bound_{level}_mm"]["max"] == pytest.approx(bound)
+        assert bound >= truth

@@ -94,3 +94,18 @@ def test_shaped_graph_decodes_the_level_shape():
     guide = np.array([[3.0, 1.0]], dtype=np.float32)
     assert sess.run(None, {"guide": guide})[0].shape == (1, 123, 3)
     assert sess.run(None, {"guide": guide, "nodes": np.arange(10, dtype=np.int64)})[0].shape == (1, 10, 3)
+
+
+def test_a_coarse_level_with_a_stored_bound_gets_surface_and_nodes():
+    """Studies analysed since the coarse bound is stored (convergence.analyse): the third-finest level,
+    where models/default is built, gets its surface and every-node errors from that bound."""
+    s = study()
+    for c, row in enumerate(s["analysis"]["cases"].values()):
+        for i, r in enumerate(row["markers"]):
+            r["bound_coarse_mm"] = 0.5 + 0.01 * (c + i)
+        for zone in ("near_tip", "rest"):
+            row[f"surface_{zone}"]["bound_coarse_mm"] = {"max": 3.0 + c}
+        row["all_nodes"]["bound_coarse_mm"] = {"max": 4.0 + c}
+    errs = level_errors(s)
+    assert errs[1].fe_mm == pytest.approx({"markers": 0.52, "prostate_surface": 4.0, "all_nodes": 5.0})
+    assert errs[0].fe_mm == level_errors(study())[0].fe_mm  # below the analysed levels: markers only
