@@ -103,3 +103,29 @@ def lame_sphere_error(nu, size=0.4, md=False, taylor_hood=False):
     exact = p * a**3 / (E * (b**3 - a**3)) * ((1 - 2 * nu) * r + (1 + nu) * b**3 / (2 * r**2))
     vertices = np.arange(mesh.nvertices)  # on the true spheres; edge nodes sit on chords
     return float(np.abs(ur - exact)[vertices].max() / exact.max())
+
+
+def newton_with_one_uphill_step(p, monkeypatch, spoil):
+    """Newton from a perturbed equilibrium of `p` (1 mm at 4 deg, the guide already in place, so every step
+    must pass Armijo), with the first correction for which spoil(cache.factor) holds turned uphill.
+    Returns (u, g, stats, final factor, whether a step was spoiled)."""
+    import fem_offline.newton as nt
+    from fem_offline.solve import solve_case
+
+    u_ref, _ = solve_case(p, 1.0, 4.0)
+    g = u_ref.ravel().copy()
+    start = g.copy()
+    start[p.free] += 1e-3 * np.random.default_rng(0).standard_normal(len(p.free))
+    solve, spoiled = nt._solve_linearised, []
+
+    def uphill_once(problem, cache, K, rhs, stats):
+        du, stats = solve(problem, cache, K, rhs, stats)
+        if spoil(cache.factor) and not spoiled:
+            spoiled.append(True)
+            return -du, stats  # every backtrack then fails Armijo
+        return du, stats
+
+    monkeypatch.setattr(nt, "_solve_linearised", uphill_once)
+    cache = nt.FactorCache()
+    u, stats = nt.newton(p, start, g, cache)
+    return u, g, stats, cache.factor, bool(spoiled)

@@ -102,26 +102,10 @@ def test_a_float32_correction_the_line_search_rejects_is_redone_with_float64_fac
     1e4 stiffness contrast did it once in CI), Newton re-solves that iteration exactly with float64
     factors and keeps them, instead of failing the line search. From a perturbed equilibrium with the
     guide already in place, so every iteration must lower the energy (Armijo)."""
-    import fem_offline.newton as nt
-    from fem_offline.solve import solve_case
+    from .fe_helpers import newton_with_one_uphill_step
 
     p = tiny_problem
-    u_ref, _ = solve_case(p, 1.0, 4.0)
-    g = u_ref.ravel().copy()
-    start = g.copy()
-    start[p.free] += 1e-3 * np.random.default_rng(0).standard_normal(len(p.free))
-    solve, spoiled = nt._solve_linearised, []
-
-    def ascent_once(problem, cache, K, rhs, stats):
-        du, stats = solve(problem, cache, K, rhs, stats)
-        if cache.factor.single and not spoiled:
-            spoiled.append(True)
-            return -du, stats  # uphill: every backtrack fails Armijo
-        return du, stats
-
-    monkeypatch.setattr(nt, "_solve_linearised", ascent_once)
-    cache = nt.FactorCache()
-    u, stats = nt.newton(p, start, g, cache)
-    assert spoiled and not cache.factor.single  # the float64 factors are kept
+    u, g, stats, factor, spoiled = newton_with_one_uphill_step(p, monkeypatch, lambda f: f.single)
+    assert spoiled and not factor.single  # the float64 factors are kept
     assert stats.residual <= p.scene.solver.rtol
     assert np.abs(u - g).max() < 1e-6 * np.abs(g).max()

@@ -119,25 +119,10 @@ def test_a_float32_saddle_step_the_line_search_rejects_is_redone_with_float64_fa
     """The saddle-point factors are float32 (mixed.SINGLE_FACTORS); where their step lowers no energy (here:
     made an ascent direction), Newton redoes that iteration with float64 factors and keeps them, instead of
     failing the line search. From a perturbed equilibrium with the guide in place (every step must pass Armijo)."""
-    from fem_offline.solve import solve_case
+    from .fe_helpers import newton_with_one_uphill_step
 
     p = problems[True]
-    u_ref, _ = solve_case(p, 1.0, 4.0)
-    g = u_ref.ravel().copy()
-    start = g.copy()
-    start[p.free] += 1e-3 * np.random.default_rng(0).standard_normal(len(p.free))
-    solve, spoiled = nt._solve_linearised, []
-
-    def ascent_once(problem, cache, K, rhs, stats):
-        du, stats = solve(problem, cache, K, rhs, stats)
-        if cache.factor.float32 and not spoiled:
-            spoiled.append(True)
-            return -du, stats
-        return du, stats
-
-    monkeypatch.setattr(nt, "_solve_linearised", ascent_once)
-    cache = FactorCache()
-    u, stats = nt.newton(p, start, g, cache)
-    assert spoiled and isinstance(cache.factor, mixed.SaddleFactor) and not cache.factor.float32
+    u, g, stats, factor, spoiled = newton_with_one_uphill_step(p, monkeypatch, lambda f: f.float32)
+    assert spoiled and isinstance(factor, mixed.SaddleFactor) and not factor.float32
     assert stats.residual <= p.scene.solver.rtol
     assert np.abs(u - g).max() < 1e-6 * np.abs(g).max()
