@@ -13,12 +13,11 @@ e_FE(L): the FE on mesh level L against the best converged estimate of a grid-co
 By the triangle inequality each sum bounds the distance to the converged answer wherever the band
 bounds the finest level's own error. The JSON keeps every level's displacement at the markers (and
 three interior points), but the prostate surface and the whole mesh only as summaries of the three
-finest levels: the surface's largest change between the two finest levels and the finest band, the
-whole mesh's finest band only. So e_FE is known
+analysed levels: the finest band and each coarser level's pointwise bound (its max over the points;
+the coarse level's only in studies analysed since it was stored). So e_FE is known
   markers            on every level (pointwise sum)
-  prostate_surface   on the two finest levels (the second finest: largest change + largest band, an
-                     upper bound of the pointwise sum, as the two maxima may sit at different points)
-  all_nodes          on the finest level only
+  prostate_surface   on the analysed levels (the pointwise sum's max)
+  all_nodes          on the analysed levels
 and `level_errors` leaves a region out of a level's `fe_mm` where the JSON cannot give it.
 """
 
