@@ -236,12 +236,12 @@ def _row(r: Richardson) -> dict:
             "gci_fine_mm": r.gci_fine, "gci_medium_mm": r.gci_medium}
 
 
-def _medium_bound(medium: np.ndarray, fine: np.ndarray, fine_band: np.ndarray) -> np.ndarray:
-    """Per point (k,): how far the medium level can be from the converged value, |u2 - u1| + GCI_fine
-    (the triangle inequality through the fine level; it uses the finest solution, so it is tighter
-    than Roache's GCI_medium, which rests on the coarse level). The same with the coarse level's u3
-    is the coarse bound: a model built on the coarse level (models/default) is judged by it."""
-    return np.linalg.norm(medium - fine, axis=1) + fine_band
+def _level_bound(level: np.ndarray, fine: np.ndarray, fine_band: np.ndarray) -> np.ndarray:
+    """Per point (k,): how far a coarser level (the medium u2, or the coarse u3) can be from the converged
+    value, |u_L - u1| + GCI_fine (the triangle inequality through the fine level; for the medium level it
+    is tighter than Roache's GCI_medium, which rests on the coarse level). A model built on the coarse
+    level (models/default) is judged by the coarse bound."""
+    return np.linalg.norm(level - fine, axis=1) + fine_band
 
 
 def _summary(x: np.ndarray) -> dict:
@@ -268,13 +268,13 @@ def analyse(raw: dict) -> dict:
         nodes_medium, _ = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio, order, level="medium")
         row["all_nodes"] = {"n_points": len(nodes_band), "mean_order": order.order, "mean_kind": order.kind,
                             "gci_mm": _summary(nodes_band), "gci_medium_mm": _summary(nodes_medium),
-                            "bound_medium_mm": _summary(_medium_bound(u2["nodes"], u1["nodes"], nodes_band)),
-                            "bound_coarse_mm": _summary(_medium_bound(u3["nodes"], u1["nodes"], nodes_band))}
+                            "bound_medium_mm": _summary(_level_bound(u2["nodes"], u1["nodes"], nodes_band)),
+                            "bound_coarse_mm": _summary(_level_bound(u3["nodes"], u1["nodes"], nodes_band))}
         for group in ("markers", "interior"):
             mags = [np.linalg.norm(u[group], axis=1) for u in (u3, u2, u1)]
             band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order)
             medium_band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order, level="medium")
-            bound, coarse_bound = _medium_bound(u2[group], u1[group], band), _medium_bound(u3[group], u1[group], band)
+            bound, coarse_bound = _level_bound(u2[group], u1[group], band), _level_bound(u3[group], u1[group], band)
             row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g), "gci_vector_medium_mm": float(h),
                            "bound_medium_mm": float(k), "bound_coarse_mm": float(m)}
                           for a, b, c, g, h, k, m in zip(*mags, band, medium_band, bound, coarse_bound)]
@@ -286,8 +286,8 @@ def analyse(raw: dict) -> dict:
             row[f"surface_{zone}"] = {
                 "n_points": int(mask.sum()), "gci_mm": _summary(band), "gci_medium_mm": _summary(medium_band),
                 "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
-                "bound_medium_mm": _summary(_medium_bound(s2, s1, band)),
-                "bound_coarse_mm": _summary(_medium_bound(s3, s1, band)),
+                "bound_medium_mm": _summary(_level_bound(s2, s1, band)),
+                "bound_coarse_mm": _summary(_level_bound(s3, s1, band)),
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
         out["cases"][case] = row

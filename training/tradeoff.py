@@ -52,7 +52,7 @@ class LevelFe:
 def gci_bands(analysis: dict, level: str = "fine") -> dict[str, float]:
     """How far the finest level (or, level="medium" / "coarse", the second- / third-finest) is from the converged estimate,
     per region (mm), max over the cases of `analyse`'s result: the finest level's GCI band; for the
-    medium or coarse level, pointwise its distance to the finest plus that band (convergence._medium_bound)."""
+    medium or coarse level, pointwise its distance to the finest plus that band (convergence._level_bound)."""
     key = {"fine": ("gci_vector_mm", "gci_mm"), "medium": ("bound_medium_mm", "bound_medium_mm"),
            "coarse": ("bound_coarse_mm", "bound_coarse_mm")}[level]
     rows = analysis["cases"].values()
