@@ -101,13 +101,14 @@ class Factor:
     PARDISO runs as SPD Cholesky (mtype 2) on the upper triangle and falls back to symmetric
     indefinite (mtype -2, in float64) if the tangent has lost definiteness. As a preconditioner for
     a later tangent (modified Newton) it serves while CG needs at most `max_cg` iterations.
-    `single`: float32 factors, for a preconditioner (a solve is then accurate to about 1e-7).
+    `float32`: float32 factors, for a preconditioner (a solve is then accurate to about 1e-7), so a fresh
+    factor's Newton step also goes through CG (`cg_first`).
     """
 
     max_cg = 12
 
-    def __init__(self, K: sp.csr_matrix, *, single: bool = False):
-        self.shape, self.single = K.shape, single
+    def __init__(self, K: sp.csr_matrix, *, float32: bool = False):
+        self.shape, self.float32 = K.shape, float32
         if PyPardisoSolver is None:
             from scipy.sparse.linalg import splu
 
@@ -116,7 +117,7 @@ class Factor:
         self._A = sp.triu(K, format="csr")
         self._A.sort_indices()
         _point_pypardiso_at_mkl()
-        for mtype, in_single in ((2, single), (-2, False)):
+        for mtype, in_single in ((2, float32), (-2, False)):
             try:
                 self._pardiso = _Pardiso(self._A, mtype, in_single)
                 break
@@ -132,18 +133,22 @@ class Factor:
         fresh Factor when the pattern differs or the matrix is no longer positive definite.
         """
         if PyPardisoSolver is None or self._pardiso.mtype != 2:
-            return Factor(K, single=self.single)
+            return Factor(K, float32=self.float32)
         A = sp.triu(K, format="csr")
         A.sort_indices()
         if A.nnz != self._A.nnz or not np.array_equal(A.indices, self._A.indices):
-            return Factor(K, single=self.single)
+            return Factor(K, float32=self.float32)
         try:
             self._pardiso.factor(A.data, phase=22)
         except np.linalg.LinAlgError as exc:  # lost definiteness
             log.info("PARDISO phase 22 failed (%s); full factorisation", exc)
-            return Factor(K, single=self.single)
+            return Factor(K, float32=self.float32)
         self._A = A
         return self
+
+    @property
+    def cg_first(self) -> bool:
+        return self.float32
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         if PyPardisoSolver is None:
@@ -194,6 +199,7 @@ class AmgSolve:
     """
 
     max_cg = 150
+    float32 = cg_first = False  # CG to rtol is its solve
 
     def __init__(self, K: sp.csr_matrix, near_nullspace: np.ndarray, rtol: float = 1e-9):
         import pyamg
@@ -227,9 +233,9 @@ class AmgSolve:
 
 
 def factorise(K: sp.csr_matrix, near_nullspace: np.ndarray | None = None, amg_min_dofs: int | None = None,
-              rtol: float = 1e-9, single: bool = False):
-    """A solver for K: PARDISO's factors (float32 ones if `single`), or AMG-CG to `rtol` when K is too
+              rtol: float = 1e-9, float32: bool = False):
+    """A solver for K: PARDISO's factors (float32 ones if `float32`), or AMG-CG to `rtol` when K is too
     large to factorise (and B is given)."""
     if near_nullspace is not None and K.shape[0] >= (AMG_MIN_DOFS if amg_min_dofs is None else amg_min_dofs):
         return AmgSolve(K, near_nullspace, rtol)
-    return Factor(K, single=single)
+    return Factor(K, float32=float32)

@@ -42,12 +42,11 @@ from scipy.sparse.linalg import LinearOperator
 
 from .linsolve import Factor, PyPardisoSolver, _Pardiso, _point_pypardiso_at_mkl
 
-# The saddle-point factors are float32 (PARDISO iparm 28): half the memory traffic of a factorisation and a
-# back-substitution. A fresh factor's step is refined on the float64 reduced Hessian (SaddleFactor.solve),
-# and CG on that operator to 1e-2 takes them as a preconditioner; a step the line search rejects is redone
-# with float64 factors (newton.py). Measured on default.toml's mesh, 1 thread, 10 mm path at 0 deg, first five
-# 0.25 mm steps: 99 s -> 73 s (9,030 tets), 25 s on 5,092 tets.
-SINGLE_FACTORS = True
+# Newton's saddle-point factors are float32 (PARDISO iparm 28; newton.SINGLE_FACTORS): half the memory traffic of
+# a factorisation and a back-substitution. A fresh factor's step is refined on the float64 reduced Hessian
+# (SaddleFactor.solve), and CG on that operator to 1e-2 takes them as a preconditioner; a step the line search
+# rejects is redone with float64 factors (newton.py). Measured on default.toml's mesh, 1 thread, 10 mm path at
+# 0 deg, first five 0.25 mm steps: 99 s -> 73 s (9,030 tets), 25 s on 5,092 tets.
 
 
 @dataclass(frozen=True)
@@ -105,8 +104,8 @@ class Tangent(LinearOperator):
     def saddle(self) -> sp.csr_matrix:
         return sp.bmat([[self.K, self.G.T], [self.G, -self.pressure.mass]], format="csr")
 
-    def factorise(self, single: bool = SINGLE_FACTORS) -> SaddleFactor:
-        return SaddleFactor(self, single=single)
+    def factorise(self, float32: bool = False) -> SaddleFactor:
+        return SaddleFactor(self, float32=float32)
 
 
 def reduced_product(pressure: Pressure, G: sp.csr_matrix, v: np.ndarray) -> np.ndarray:
@@ -120,10 +119,10 @@ class SaddleFactor:
     Hessian's inverse applied to b. Serves as CG's preconditioner for later tangents, as a Factor does."""
 
     max_cg = 12
-    single = False  # newton.py: the fresh factor's own (refined) solve gives the step, not CG
+    cg_first = False  # newton.py: a fresh factor's own (refined) solve gives the step, not CG
 
-    def __init__(self, tangent: Tangent, single: bool = SINGLE_FACTORS):
-        self.shape, self.n, self.float32 = tangent.shape, tangent.shape[0], single
+    def __init__(self, tangent: Tangent, float32: bool = False):
+        self.shape, self.n, self.float32 = tangent.shape, tangent.shape[0], float32
         self._tangent = tangent
         A = tangent.saddle()
         if PyPardisoSolver is None:
@@ -133,7 +132,7 @@ class SaddleFactor:
             return
         self._A = self._upper(A)
         _point_pypardiso_at_mkl()
-        self._pardiso = _Pardiso(self._A, -2, single, matching=True)
+        self._pardiso = _Pardiso(self._A, -2, float32, matching=True)
 
     @staticmethod
     def _upper(A):
@@ -159,10 +158,10 @@ class SaddleFactor:
     def refactor(self, tangent: Tangent) -> SaddleFactor:
         """Factorise a later tangent, reusing the symbolic analysis (PARDISO phase 22) when the pattern is the same."""
         if PyPardisoSolver is None:
-            return SaddleFactor(tangent, single=self.float32)
+            return SaddleFactor(tangent, float32=self.float32)
         A = self._upper(tangent.saddle())
         if A.nnz != self._A.nnz or not np.array_equal(A.indices, self._A.indices):
-            return SaddleFactor(tangent, single=self.float32)
+            return SaddleFactor(tangent, float32=self.float32)
         self._pardiso.factor(A.data, phase=22)
         self._A, self._tangent = A, tangent
         return self

@@ -30,9 +30,10 @@ CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
 # each. Further out, where penetrations (and so pressures) are still far from equilibrium, the term
 # made the tangent indefinite (contact.py).
 EXACT_CONTACT_BELOW = 1e-2
-# The tangent's PARDISO factors are float32 (linsolve.Factor): they only precondition CG to CG_RTOL,
-# or give a correction the next Newton iteration corrects. Measured (scripts/profile_path.py): see README.
-# A superposable (linear, glued) problem keeps float64 ones: its one solve is the answer, exact to round-off.
+# The tangent's PARDISO factors are float32 (linsolve.Factor, mixed.SaddleFactor): they only precondition CG
+# to CG_RTOL, or give a correction the next Newton iteration corrects. Measured (scripts/profile_path.py): see
+# README and mixed.py. A superposable (linear, glued) problem keeps float64 ones: its one solve is the answer,
+# exact to round-off.
 SINGLE_FACTORS = True
 
 
@@ -201,12 +202,12 @@ def _solve_linearised(p: Problem, cache: FactorCache, K, rhs, stats: Stats) -> t
     if cache.factor is not None:
         cache.factor = cache.factor.refactor(K)
     elif isinstance(K, mixed.Tangent):
-        cache.factor = K.factorise()
+        cache.factor = K.factorise(float32=SINGLE_FACTORS)
     else:
         cache.factor = factorise(K, rigid_body_modes(p.mesh.nodes)[p.free], rtol=CG_RTOL,
-                                 single=SINGLE_FACTORS and not p.superposable)
+                                 float32=SINGLE_FACTORS and not p.superposable)
     stats = replace(stats, factorizations=stats.factorizations + 1)
-    if getattr(cache.factor, "single", False):
+    if cache.factor.cg_first:
         du, stats = _preconditioned_cg(K, rhs, cache.factor, stats)
         if du is not None:
             return du, stats
@@ -259,12 +260,12 @@ def newton(problem: Problem, u: np.ndarray, g: np.ndarray, cache: FactorCache,
         try:
             u, ev = _line_search(p, u, step, ev, prescribed_done, stats)
         except ConvergenceError:
-            if not (getattr(cache.factor, "single", False) or getattr(cache.factor, "float32", False)):
+            if not cache.factor.float32:
                 raise
             # The correction came through float32 factors (CG to CG_RTOL, or their own solve). On an
             # ill-conditioned tangent (a stiffness contrast of 1e4) it can fail to lower the energy
             # where the exact Newton step does: solve exactly with float64 factors, kept from here on.
-            cache.factor = K.factorise(single=False) if isinstance(K, mixed.Tangent) else Factor(K)
+            cache.factor = K.factorise(float32=False) if isinstance(K, mixed.Tangent) else Factor(K)
             stats = replace(stats, factorizations=stats.factorizations + 1)
             step = du_d.copy()
             step[free] = cache.factor.solve(rhs)

@@ -72,7 +72,7 @@ def test_single_precision_factors_solve_to_float32_accuracy_and_refactor(tiny_li
     Ke = el.linear_stiffness(p.G, p.W, p.mu, p.lam)
     K = assemble_matrix(p.pattern, Ke)
     rhs = -apply_matrix(p.pattern, Ke, p.dirichlet(5.0, 4.0))[p.free]
-    single, double = Factor(K, single=True), Factor(K)
+    single, double = Factor(K, float32=True), Factor(K)
     x32, x64 = single.solve(rhs), double.solve(rhs)
     assert x32.dtype == np.float64
     rel = np.linalg.norm(K @ x32 - rhs) / np.linalg.norm(rhs)
@@ -80,7 +80,7 @@ def test_single_precision_factors_solve_to_float32_accuracy_and_refactor(tiny_li
     assert np.linalg.norm(K @ x64 - rhs) / np.linalg.norm(rhs) < 1e-12
     assert np.abs(x32 - x64).max() < 1e-4 * np.abs(x64).max()
     again = single.refactor(2.0 * K)
-    assert again is single and again.single
+    assert again is single and again.float32
     np.testing.assert_allclose(again.solve(rhs), 0.5 * x64, rtol=0, atol=1e-4 * np.abs(x64).max())
 
 
@@ -105,7 +105,7 @@ def test_a_float32_correction_the_line_search_rejects_is_redone_with_float64_fac
     from .fe_helpers import newton_with_one_uphill_step
 
     p = tiny_problem
-    u, g, stats, factor, spoiled = newton_with_one_uphill_step(p, monkeypatch, lambda f: f.single)
-    assert spoiled and not factor.single  # the float64 factors are kept
+    u, g, stats, factor, spoiled = newton_with_one_uphill_step(p, monkeypatch, lambda f: f.float32)
+    assert spoiled and not factor.float32  # the float64 factors are kept
     assert stats.residual <= p.scene.solver.rtol
     assert np.abs(u - g).max() < 1e-6 * np.abs(g).max()

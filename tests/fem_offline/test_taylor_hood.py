@@ -116,7 +116,7 @@ def test_it_does_not_lock():
 
 
 def test_a_float32_saddle_step_the_line_search_rejects_is_redone_with_float64_factors(problems, monkeypatch):
-    """The saddle-point factors are float32 (mixed.SINGLE_FACTORS); where their step lowers no energy (here:
+    """The saddle-point factors are float32 (newton.SINGLE_FACTORS); where their step lowers no energy (here:
     made an ascent direction), Newton redoes that iteration with float64 factors and keeps them, instead of
     failing the line search. From a perturbed equilibrium with the guide in place (every step must pass Armijo)."""
     from .fe_helpers import newton_with_one_uphill_step
