@@ -249,8 +249,14 @@ def _summary(x: np.ndarray) -> dict:
 
 
 def analyse(raw: dict) -> dict:
-    """GCI of every quantity of every case from the three finest levels of `run_study`'s result."""
+    """GCI of every quantity of every case from the three finest levels of `run_study`'s result.
+
+    A level coarser than those three (a fourth level refined under the default's) is judged by the same
+    bound as the medium and coarse ones, |u_L - u1| + GCI_fine point by point: `bound_by_scale_mm`, keyed
+    by its scale ("1.3"), beside each quantity's medium and coarse bounds.
+    """
     coarse, medium, fine = raw["levels"][-3:]
+    coarser = raw["levels"][:-3]
     ratio = (coarse["scale"] / medium["scale"], medium["scale"] / fine["scale"])  # (r32, r21)
     # (the 1e-3: scales are written to 4 digits, so 0.769 / 0.5917 = 1.2996 is the ratio 1.3)
     if min(ratio) < MIN_RATIO * (1 - 1e-3) or max(ratio) > 1.01 * min(ratio):
@@ -259,25 +265,30 @@ def analyse(raw: dict) -> dict:
     near = np.linalg.norm(raw["probes"]["prostate_surface"] - raw["tip_mm"], axis=1) < NEAR_TIP_MM
     out = {"ratio": ratio[1], "ratios": list(ratio),
            "levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} for lv in (coarse, medium, fine)],
-           "cases": {}}
+           "coarser_levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} for lv in coarser], "cases": {}}
     for case in fine["cases"]:
         u3, u2, u1 = (lv["cases"][case] for lv in (coarse, medium, fine))
-        row = {"seconds": [lv["cases"][case]["seconds"] for lv in (coarse, medium, fine)]}
+        below = {f"{lv['scale']:g}": lv["cases"][case] for lv in coarser}
+        row = {"seconds": [lv["cases"][case]["seconds"] for lv in (*coarser, coarse, medium, fine)]}  # every level
         # one order per case, that of the mean |u| over every node, for every pointwise band below
         nodes_band, order = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio)
         nodes_medium, _ = field_gci(u3["nodes"], u2["nodes"], u1["nodes"], ratio, order, level="medium")
         row["all_nodes"] = {"n_points": len(nodes_band), "mean_order": order.order, "mean_kind": order.kind,
                             "gci_mm": _summary(nodes_band), "gci_medium_mm": _summary(nodes_medium),
                             "bound_medium_mm": _summary(_level_bound(u2["nodes"], u1["nodes"], nodes_band)),
-                            "bound_coarse_mm": _summary(_level_bound(u3["nodes"], u1["nodes"], nodes_band))}
+                            "bound_coarse_mm": _summary(_level_bound(u3["nodes"], u1["nodes"], nodes_band)),
+                            "bound_by_scale_mm": {s: _summary(_level_bound(u["nodes"], u1["nodes"], nodes_band))
+                                                  for s, u in below.items()}}
         for group in ("markers", "interior"):
             mags = [np.linalg.norm(u[group], axis=1) for u in (u3, u2, u1)]
             band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order)
             medium_band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order, level="medium")
             bound, coarse_bound = _level_bound(u2[group], u1[group], band), _level_bound(u3[group], u1[group], band)
+            lower = {s: _level_bound(u[group], u1[group], band) for s, u in below.items()}
             row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g), "gci_vector_medium_mm": float(h),
-                           "bound_medium_mm": float(k), "bound_coarse_mm": float(m)}
-                          for a, b, c, g, h, k, m in zip(*mags, band, medium_band, bound, coarse_bound)]
+                           "bound_medium_mm": float(k), "bound_coarse_mm": float(m),
+                           "bound_by_scale_mm": {s: float(x[i]) for s, x in lower.items()}}
+                          for i, (a, b, c, g, h, k, m) in enumerate(zip(*mags, band, medium_band, bound, coarse_bound))]
         for zone, mask in (("near_tip", near), ("rest", ~near)):
             s3, s2, s1 = (u["prostate_surface"][mask] for u in (u3, u2, u1))
             mags = [np.linalg.norm(u, axis=1) for u in (s3, s2, s1)]
@@ -288,6 +299,7 @@ def analyse(raw: dict) -> dict:
                 "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
                 "bound_medium_mm": _summary(_level_bound(s2, s1, band)),
                 "bound_coarse_mm": _summary(_level_bound(s3, s1, band)),
+                "bound_by_scale_mm": {s: _summary(_level_bound(u["prostate_surface"][mask], s1, band)) for s, u in below.items()},
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
         out["cases"][case] = row

@@ -48,40 +48,49 @@ def _fmt(r: dict) -> str:
 
 
 def markdown(result: dict, command: str, seconds: float, image: str = "convergence.png") -> str:
-    lv = result["levels"]
+    lv, below = result["levels"], result.get("coarser_levels", [])
+    keys = [f"{x['scale']:g}" for x in below]
+
+    def more(r: dict, summary: bool = False) -> str:  # the bounds of the levels coarser than the three
+        b = r.get("bound_by_scale_mm", {})
+        return "".join(f" max {b[k]['max']:.3f}, p95 {b[k]['p95']:.3f} |" if summary else f" {b[k]:.3f} |" for k in keys)
+
     lines = ["# Grid convergence at the prostate", "",
              f"Written by `{command}` ({seconds / 60:.0f} min of solving, summed over the levels).", "",
              "Levels (every mesh size scaled together, ratios r32 = {:.4f}, r21 = {:.4f}): ".format(*result["ratios"])
-             + ", ".join(f"{x['n_tets']:,} tets (sizes x {x['scale']:g})" for x in lv) + ".",
+             + ", ".join(f"{x['n_tets']:,} tets (sizes x {x['scale']:g})" for x in [*below, *lv]) + "."
+             + (" The GCI comes from the three finest." if below else ""),
              "Values are |u| in mm, coarse / medium / fine; p is the observed order (Celik's fixed point where "
              "r32 != r21); the estimate is Richardson's; GCI is the fine mesh's error band (Fs = 1.25), in mm. "
              "\"GCI vector\" is the band of the displacement vector at that point: Fs |u_fine - u_medium| / (r21^q - 1) "
              "with one order per case, that of the mean |u| over every node (its kind is on the \"every node\" row); "
              "where that mean does not converge monotonically, Fs times the larger change between levels. "
              "\"Medium bound\" is how far the medium mesh can be from the converged value: |u_medium - u_fine| + "
-             "the fine GCI vector, point by point; \"coarse bound\" the same for the coarse mesh.", ""]
-    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound | coarse bound |\n"
-            "|---|---|---|---|---|---|---|---|---|")
+             "the fine GCI vector, point by point; \"coarse bound\" the same for the coarse mesh"
+             + "".join(f"; \"bound x{x['scale']:g}\" the same for the level under the three, {x['n_tets']:,} tets "
+                       f"(sizes x {x['scale']:g})" for x in below) + ".", ""]
+    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound | coarse bound |"
+            + "".join(f" bound x{k} |" for k in keys) + "\n|---|---|---|---|---|---|---|---|---|" + "---|" * len(keys))
     for case, row in result["cases"].items():
-        lines += [f"## {case}", "", "Solve time per level: " + ", ".join(f"{s / 60:.1f} min" for s in row["seconds"]), "", head]
+        lines += [f"## {case}", "", "Solve time per level, coarsest first: " + ", ".join(f"{s / 60:.1f} min" for s in row["seconds"]), "", head]
         for i, r in enumerate(row["markers"]):
-            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |")
+            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |" + more(r))
         for name, r in zip(("prostate centroid", "5 mm in front of the tip", "10 mm in front of the tip"), row["interior"]):
-            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |")
+            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |" + more(r))
         for zone in ("near_tip", "rest"):
             z = row[f"surface_{zone}"]
             label = f"surface < {NEAR_TIP_MM:g} mm from the tip" if zone == "near_tip" else "surface, the rest"
             for stat in ("max", "p95", "mean"):
-                lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | | | |")
+                lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | | | |" + " |" * len(keys))
             g, b, c = z["gci_mm"], z["bound_medium_mm"], z["bound_coarse_mm"]
             lines.append(f"| {label}: pointwise band ({z['n_points']} points) | max {g['max']:.3f}, p95 {g['p95']:.3f}, "
                          f"mean {g['mean']:.3f} | | | | | | max {b['max']:.3f}, p95 {b['p95']:.3f} | "
-                         f"max {c['max']:.3f}, p95 {c['p95']:.3f} |")
+                         f"max {c['max']:.3f}, p95 {c['p95']:.3f} |" + more(z, summary=True))
         a = row["all_nodes"]
         g, b, c = a["gci_mm"], a["bound_medium_mm"], a["bound_coarse_mm"]
         lines.append(f"| every node: pointwise band ({a['n_points']} points) | max {g['max']:.3f}, "
                      f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {a['mean_kind']} | | | | | "
-                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} | max {c['max']:.3f}, p95 {c['p95']:.3f} |")
+                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} | max {c['max']:.3f}, p95 {c['p95']:.3f} |" + more(a, summary=True))
         lines.append("")
     lines += [f"![convergence]({image})", ""]
     return "\n".join(lines)
@@ -145,10 +154,16 @@ def main() -> int:
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():
-        for level, key in (("fine", "gci"), ("medium", "bound_medium"), ("coarse", "bound_coarse")):
-            m = max(r[f"{key}_vector_mm" if key == "gci" else f"{key}_mm"] for r in row["markers"])
-            i = max(r[f"{key}_vector_mm" if key == "gci" else f"{key}_mm"] for r in row["interior"])
-            near, rest = row["surface_near_tip"][f"{key}_mm"], row["surface_rest"][f"{key}_mm"]
+        def bound(r: dict, key: str):
+            return r[key] if key in r else r["bound_by_scale_mm"][key]
+
+        levels = [("fine", "gci_vector_mm", "gci_mm"), ("medium", "bound_medium_mm", "bound_medium_mm"),
+                  ("coarse", "bound_coarse_mm", "bound_coarse_mm")]
+        levels += [(f"x{lv['scale']:g}", f"{lv['scale']:g}", f"{lv['scale']:g}") for lv in result["coarser_levels"]]
+        for level, point, field in levels:
+            m = max(bound(r, point) for r in row["markers"])
+            i = max(bound(r, point) for r in row["interior"])
+            near, rest = (bound(row[f"surface_{z}"], field) for z in ("near_tip", "rest"))
             print(f"{case}, {level} level: markers max {m:.3f} mm, interior max {i:.3f} mm; prostate surface near tip "
                   f"max {near['max']:.3f} mm, rest max {rest['max']:.3f} mm, mean {rest['mean']:.3f} mm")
     print(f"wrote {args.docs / (name + '.md')} ({time.perf_counter() - t0:.0f} s this run)")

@@ -50,15 +50,22 @@ class LevelFe:
 
 
 def gci_bands(analysis: dict, level: str = "fine") -> dict[str, float]:
-    """How far the finest level (or, level="medium" / "coarse", the second- / third-finest) is from the converged estimate,
-    per region (mm), max over the cases of `analyse`'s result: the finest level's GCI band; for the
-    medium or coarse level, pointwise its distance to the finest plus that band (convergence._level_bound)."""
+    """How far the finest level (or, level="medium" / "coarse", the second- / third-finest; or a level coarser than
+    those three by its scale, "1.3") is from the converged estimate, per region (mm), max over the cases of
+    `analyse`'s result: the finest level's GCI band; for a coarser level, pointwise its distance to the finest
+    plus that band (convergence._level_bound)."""
     key = {"fine": ("gci_vector_mm", "gci_mm"), "medium": ("bound_medium_mm", "bound_medium_mm"),
-           "coarse": ("bound_coarse_mm", "bound_coarse_mm")}[level]
+           "coarse": ("bound_coarse_mm", "bound_coarse_mm")}.get(level)
+    if key is None:
+        def pick(r: dict):
+            return r["bound_by_scale_mm"][level]
+    else:
+        def pick(r: dict):
+            return r[key[0]] if key[0] in r else r[key[1]]
     rows = analysis["cases"].values()
-    return {"markers": max(max(r[key[0]] for r in row["markers"]) for row in rows),
-            "prostate_surface": max(row[f"surface_{z}"][key[1]]["max"] for row in rows for z in ("near_tip", "rest")),
-            "all_nodes": max(row["all_nodes"][key[1]]["max"] for row in rows)}
+    return {"markers": max(max(pick(r) for r in row["markers"]) for row in rows),
+            "prostate_surface": max(pick(row[f"surface_{z}"])["max"] for row in rows for z in ("near_tip", "rest")),
+            "all_nodes": max(pick(row["all_nodes"])["max"] for row in rows)}
 
 
 def _full_push_seconds(level: dict) -> float:
@@ -93,6 +100,8 @@ def level_errors(study: dict) -> list[LevelFe]:
             fe = gci_bands(analysis, "medium")
         elif this == key[-3] and all("bound_coarse_mm" in r for row in analysis["cases"].values() for r in row["markers"]):
             fe = gci_bands(analysis, "coarse")  # studies analysed since the coarse bound was stored
+        elif f"{lv['scale']:g}" in analysis["cases"][next(iter(analysis["cases"]))]["all_nodes"].get("bound_by_scale_mm", {}):
+            fe = gci_bands(analysis, f"{lv['scale']:g}")  # a level under the three (studies with four levels)
         else:
             fe = {"markers": _marker_error(lv, finest, analysis)}
         out.append(LevelFe(float(lv["scale"]), int(lv["n_tets"]), int(lv["n_nodes"]), fe, _full_push_seconds(lv)))

@@ -119,3 +119,20 @@ def test_coarse_and_medium_bounds_are_the_distance_to_the_fine_level_plus_its_ba
         for region in ("all_nodes", "surface_near_tip", "surface_rest"):
             assert row[region][f"bound_{level}_mm"]["max"] == pytest.approx(bound)
         assert bound >= truth
+
+
+def test_a_level_under_the_three_analysed_gets_the_same_bound_by_its_scale():
+    """A fourth, coarser level (the default's, under a study refined past it): |u_L - u1| + the fine band,
+    keyed by its scale, in every region; it holds that level's true error h_L^2 and leaves the GCI of the
+    three finest unchanged."""
+    from fem_offline.convergence import SAFETY, analyse
+
+    three, four = analyse(_raw([1.69, 1.3, 1.0])), analyse(_raw([2.197, 1.69, 1.3, 1.0]))
+    assert [lv["scale"] for lv in four["coarser_levels"]] == [2.197] and three["coarser_levels"] == []
+    row, h = four["cases"]["c"], 2.197
+    bound = (1 + h * h - 2.0) + SAFETY * 1.0
+    assert all(r["bound_by_scale_mm"] == {"2.197": pytest.approx(bound)} for r in row["markers"] + row["interior"])
+    for region in ("all_nodes", "surface_near_tip", "surface_rest"):
+        assert row[region]["bound_by_scale_mm"]["2.197"]["max"] == pytest.approx(bound)
+    assert bound >= h * h
+    assert row["markers"][0]["gci_vector_mm"] == three["cases"]["c"]["markers"][0]["gci_vector_mm"]

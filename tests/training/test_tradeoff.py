@@ -109,3 +109,18 @@ def test_a_coarse_level_with_a_stored_bound_gets_surface_and_nodes():
     errs = level_errors(s)
     assert errs[1].fe_mm == pytest.approx({"markers": 0.52, "prostate_surface": 4.0, "all_nodes": 5.0})
     assert errs[0].fe_mm == level_errors(study())[0].fe_mm  # below the analysed levels: markers only
+
+
+def test_a_level_under_the_analysed_three_with_a_stored_bound_gets_every_region():
+    """Studies with a fourth level (convergence.analyse's bound_by_scale_mm): the level under the three, where
+    models/default is built, is judged by its own pointwise bound in every region, not by markers alone."""
+    s = study()
+    for c, row in enumerate(s["analysis"]["cases"].values()):
+        for i, r in enumerate(row["markers"]):
+            r["bound_by_scale_mm"] = {"2": 0.9 + 0.01 * (c + i)}
+        for zone in ("near_tip", "rest"):
+            row[f"surface_{zone}"]["bound_by_scale_mm"] = {"2": {"max": 5.0 + c}}
+        row["all_nodes"]["bound_by_scale_mm"] = {"2": {"max": 6.0 + c}}
+    errs = level_errors(s)
+    assert errs[0].fe_mm == pytest.approx({"markers": 0.92, "prostate_surface": 6.0, "all_nodes": 7.0})
+    assert errs[0].fe_mm == pytest.approx(gci_bands(s["analysis"], "2"))
