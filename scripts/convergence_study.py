@@ -128,6 +128,7 @@ def main() -> int:
                     help="the element's volumetric term (solver.volumetric; default: the scene's)")
     ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))
+    ap.add_argument("--name", help="the docs files' name (default: convergence[_contact][_VOLUMETRIC], as --out's folder)")
     ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG",
                     help="the cases to solve on every level (default: the hard cases, fem_offline.convergence.HARD_CASES)")
     args = ap.parse_args()
@@ -138,8 +139,10 @@ def main() -> int:
     name = "convergence_contact" if scene.effects.guide_contact else "convergence"
     if scene.solver.volumetric != "pointwise":
         name += f"_{scene.solver.volumetric}"
+    default_name = name
+    name = args.name or name
     cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
-    raw = run_study(scene, args.scales, args.out or Path("runs") / name, cases)
+    raw = run_study(scene, args.scales, args.out or Path("runs") / default_name, cases)
     result = analyse(raw)
     seconds = sum(sum(lv["cases"][c]["seconds"] for c in lv["cases"]) for lv in raw["levels"])
     args.docs.mkdir(parents=True, exist_ok=True)
@@ -151,6 +154,8 @@ def main() -> int:
     command += (f" --guide {args.guide}" if args.guide else "") + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
     command += (" --cases " + " ".join(args.cases)) if args.cases else ""
     command += f" --volumetric {args.volumetric}" if args.volumetric else ""
+    command += f" --out {args.out}" if args.out else ""
+    command += f" --name {args.name}" if args.name else ""
     (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
     plot(raw, result, args.docs / f"{name}.png")
     for case, row in result["cases"].items():

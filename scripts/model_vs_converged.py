@@ -1,10 +1,11 @@
 """A served model against the converged estimate of another element's grid-convergence study.
 
     python scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
-        --scales 1.3 1 0.769 [--json docs/fe_error_default.json]
+        --scales 1.3 1 0.769 0.5917 [--json docs/fe_error_default.json]
 
 The grid-convergence study (scripts/convergence_study.py, here with solver.volumetric = "taylor_hood")
-keeps each level's mesh and each case's solution under --study. Its three levels, interpolated at
+keeps each level's mesh and each case's solution under --study. Per case, the three finest levels that solved it
+(a case the finest level has not reached yet is judged on the three below), interpolated at
 the model mesh's own nodes, give at every node the fine level's answer u1 and its GCI band (Roache,
 one order per case from the mean |u|, fem_offline.convergence.field_gci). The model's answer m at
 the same case (ONNX, float32, the whole mesh) is then at most
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +49,25 @@ def level_solution(study: Path, scale: float, case: tuple[float, float], points:
     return at_points(read_mesh(study / f"mesh_{scale:g}.npz"), u, points)
 
 
+def solved(study: Path, scale: float, case: tuple[float, float]) -> bool:
+    """Whether the study's path of `case` on level `scale` reached the case's displacement."""
+    path = study / f"path_{scale:g}_{case[0]:g}_{case[1]:g}.npz"
+    if not path.exists():
+        return False
+    with np.load(path) as z:
+        return float(z["d_mm"]) >= case[0] - 1e-9
+
+
+def case_levels(study: Path, scales: list[float], case: tuple[float, float]) -> list[float]:
+    """The three finest of `scales` that solved `case` (a case the finest level has not solved yet is judged
+    on the three below it); refuses a case with fewer than three."""
+    done = [s for s in scales if solved(study, s, case)]
+    if len(done) < 3:
+        raise ValueError(f"{case[0]:g} mm, {case[1]:g} deg: solved on levels {done or 'none'} of {scales} in {study}; "
+                         "the estimate needs three (run the study first)")
+    return done[-3:]
+
+
 def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
     folder = read_model_folder(model)
     manifest, mesh = folder.manifest, folder.mesh
@@ -57,16 +78,17 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
     regions = {"markers": np.asarray(mesh.node_sets["markers"]), "prostate_surface": surface,
                "prostate_surface_near_tip": surface[near], "prostate_surface_rest": surface[~near],
                "all_nodes": np.arange(len(mesh.nodes))}
-    ratio = (scales[0] / scales[1], scales[1] / scales[2])
     out = {"cases": {}}
     for case in cases:
-        u3, u2, u1 = (level_solution(study, s, case, mesh.nodes) for s in scales)
+        used = case_levels(study, scales, case)
+        ratio = (used[0] / used[1], used[1] / used[2])
+        u3, u2, u1 = (level_solution(study, s, case, mesh.nodes) for s in used)
         band, order = field_gci(u3, u2, u1, ratio)
         m = session.run(None, {"guide": np.array([case], np.float32)})[0][0].astype(np.float64)
         gap = np.linalg.norm(m - u1, axis=1)
         e = gap + band
         out["cases"][f"{case[0]:g} mm, {case[1]:g} deg"] = {
-            "mean_kind": order.kind, "mean_order": None if not np.isfinite(order.order) else float(order.order),
+            "scales": used, "mean_kind": order.kind, "mean_order": None if not np.isfinite(order.order) else float(order.order),
             "regions": {k: {"end_to_end_max_mm": float(e[ids].max()), "gap_max_mm": float(gap[ids].max()),
                             "band_max_mm": float(band[ids].max()), "end_to_end_mean_mm": float(e[ids].mean())}
                         for k, ids in regions.items()},
@@ -82,15 +104,22 @@ def main() -> int:
     ap.add_argument("--model", type=Path, default=Path("models/default"))
     ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),
                     help="a convergence study's folder (meshes and path checkpoints)")
-    ap.add_argument("--scales", type=float, nargs=3, default=[1.3, 1.0, 0.769], help="its three levels, coarsest first")
+    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],
+                    help="its levels, coarsest first; the three finest give the estimate (as the study's analysis)")
     ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG", help="default: the hard cases")
     ap.add_argument("--element", default="taylor_hood", help="the study's solver.volumetric, for the record")
     ap.add_argument("--json", type=Path, default=Path("docs/fe_error_default.json"))
     args = ap.parse_args()
+    if len(args.scales) < 3:
+        ap.error(f"--scales: need three levels at least, got {len(args.scales)}")
     cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
-    result = compare(args.model, args.study, args.scales, cases)
+    try:
+        result = compare(args.model, args.study, args.scales, cases)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     levels = []
-    for s in args.scales:
+    for s in sorted({s for row in result["cases"].values() for s in row["scales"]}, reverse=True):
         mesh = read_mesh(args.study / f"mesh_{s:g}.npz")
         levels.append({"scale": s, "n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes)})
     model_mesh = read_model_folder(args.model).mesh
@@ -103,7 +132,7 @@ def main() -> int:
     args.json.write_text(json.dumps(result, indent=1) + "\n")
     for case, row in result["cases"].items():
         r = row["regions"]
-        print(f"{case}: model vs converged ({args.element}), max |m - u_fine| + GCI: markers {r['markers']['end_to_end_max_mm']:.3f} mm "
+        print(f"{case} (levels x{' x'.join(f'{s:g}' for s in row['scales'])}): model vs converged ({args.element}), max |m - u_fine| + GCI: markers {r['markers']['end_to_end_max_mm']:.3f} mm "
               f"(gap {r['markers']['gap_max_mm']:.3f} + band up to {r['markers']['band_max_mm']:.3f}); prostate surface "
               f"{r['prostate_surface']['end_to_end_max_mm']:.3f} (near tip {r['prostate_surface_near_tip']['end_to_end_max_mm']:.3f}, "
               f"rest {r['prostate_surface_rest']['end_to_end_max_mm']:.3f}); every node {r['all_nodes']['end_to_end_max_mm']:.3f}; "

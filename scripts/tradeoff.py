@@ -6,9 +6,9 @@
 Every configuration (mesh level L of the convergence study, PCA rank r, network w) is one point:
   error    end to end, per region: e_surrogate(r, w) + e_FE(L) (training/tradeoff.py states both):
            the model against the best converged estimate, not against its own mesh's FE. Regions:
-           markers on every level; prostate surface and every node (in the table) on the three
-           levels the study analysed, or its two finest in a study analysed before the coarse
-           bound was stored (what the JSON stores, see training/tradeoff.py).
+           markers on every level; prostate surface and every node (in the table) on every level
+           whose pointwise bound the JSON stores: all of them in a study analysed since the bound
+           of a level under the three analysed is stored, fewer in older ones (training/tradeoff.py).
   latency  one onnxruntime call of the exported float32 graph, 1 thread, batch 1, median of repeats,
            all nodes (the plotted axis) and the prostate-surface subset (in the table). A level
            without a sweep is timed on a graph of the same shapes with a random basis.

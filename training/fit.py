@@ -176,11 +176,16 @@ def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, f
                          f"nodes, not this one ({len(model.mesh.tets)} / {len(model.mesh.nodes)})")
     surrogate = {k: r.surrogate_mm for k, r in model.manifest.accuracy.regions.items()}
     bands = {k: v + surrogate[k] for k, v in data["max_over_cases"].items() if k in surrogate}
-    levels = ", ".join(f"{lv['n_tets']:,}" for lv in data["levels"])
+    tets = {float(lv["scale"]): lv["n_tets"] for lv in data["levels"]}
+    groups: dict[str, list[str]] = {}  # the levels a case was judged on -> those cases (older files: one set for all)
+    for case, row in data["cases"].items():
+        used = row.get("scales", [lv["scale"] for lv in data["levels"]])
+        groups.setdefault(" / ".join(f"{tets[float(s)]:,}" for s in used), []).append(case)
+    on = "; ".join(f"levels of {levels} tets for {' and '.join(cases)}" for levels, cases in groups.items())
     text = (f"FE discretisation: this model against the converged estimate of a {data['element'].replace('_', '-')} "
-            f"grid-convergence study (the fine level of {levels} tets plus its grid convergence index, Fs 1.25, point by "
-            f"point), max over the cases {', '.join(data['cases'])}, plus the surrogate error, which bounds this mesh's FE "
-            f"from the model's answer (scripts/model_vs_converged.py, {Path(path).name})")
+            f"grid-convergence study (the finest level plus its grid convergence index, Fs 1.25, point by point; {on}), "
+            f"max over the cases, plus the surrogate error, which bounds this mesh's FE from the model's answer "
+            f"(scripts/model_vs_converged.py, {Path(path).name})")
     return bands, text
 
 

@@ -181,9 +181,10 @@ def test_fe_band_is_the_studys_band_of_the_model_mesh_level(tmp_path):
 def _model_vs_converged(model, tmp_path, gaps, n_tets=None):
     folder = read_model_folder(model)
     data = {"kind": "model_vs_converged", "model": str(model), "element": "taylor_hood",
-            "levels": [{"n_tets": n, "n_nodes": 2 * n} for n in (100, 200, 400)],
+            "levels": [{"scale": s, "n_tets": n, "n_nodes": 2 * n} for s, n in ((1.69, 100), (1.3, 200), (1.0, 400), (0.769, 800))],
             "model_mesh": {"n_tets": n_tets or len(folder.mesh.tets), "n_nodes": len(folder.mesh.nodes)},
-            "cases": {"10 mm, 0 deg": {}}, "max_over_cases": gaps}
+            "cases": {"10 mm, 0 deg": {"scales": [1.3, 1.0, 0.769]}, "10 mm, 10 deg": {"scales": [1.69, 1.3, 1.0]}},
+            "max_over_cases": gaps}
     path = tmp_path / "fe_error.json"
     path.write_text(json.dumps(data))
     return path
@@ -210,6 +211,9 @@ def test_restamp_changes_only_the_accuracy_and_keeps_the_folder_valid(tiny_model
         assert r.fe_discretisation_mm == pytest.approx(gap + r.surrogate_mm)
         assert r.end_to_end_mm >= r.surrogate_mm + r.fe_discretisation_mm - 1e-12
     assert "taylor-hood" in after.accuracy.reference
+    # each case names the levels it was judged on (a case the finest level has not solved: the three below)
+    assert "levels of 200 / 400 / 800 tets for 10 mm, 0 deg; levels of 100 / 200 / 400 tets for 10 mm, 10 deg" \
+        in after.accuracy.reference
     assert f"{after.accuracy.regions['markers'].end_to_end_mm:.3f}" in (model / "report.md").read_text()
     assert f"end to end at the markers {after.accuracy.regions['markers'].end_to_end_mm:.3f}" in run.stdout
     for name in ("model.onnx", "mesh.npz"):
