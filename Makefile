@@ -95,7 +95,7 @@ convergence: $(STAMP)
 # The default model's FE error against the Taylor-Hood element's converged estimate (docs/fe_error_default.json):
 # the study on four contact levels (resumable; the analysis takes the three finest), the model against it node by
 # node (each case on the three finest levels that solved it), then the stamp in models/default (manifest,
-# report.md; the ONNX graph and the mesh stay as they are). 20-58 min for the three coarser levels, about 2 h for
+# report.md; the ONNX graph and the mesh stay as they are). 20-58 min for the three coarser levels, 85 min for
 # the fourth (README, Grid convergence, "A fourth level"); stop and rerun to resume.
 TH_SCALES ?= 1.3 1 0.769 0.5917
 TH_CASES ?= 10:0 10:10 5:5
