@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from contracts.files import atomic_savez
+from contracts.mesh import read_mesh
 from contracts.interpolate import interpolation_matrix
 
 from . import guide as guide_mod
@@ -204,7 +205,7 @@ def run_study(scene: Scene, scales: list[float], out: Path, cases=HARD_CASES) ->
     Returns the raw numbers: per level its tet count and solve times, per case and level the
     displacements (k, 3) at every probe point, and the probe points themselves.
     """
-    from contracts.mesh import read_mesh, write_mesh
+    from contracts.mesh import write_mesh
 
     from .meshing import mesh_for_scene
     from .problem import build_problem
@@ -304,3 +305,53 @@ def analyse(raw: dict) -> dict:
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
         out["cases"][case] = row
     return out
+
+
+# A study folder as run_study leaves it: mesh_<scale>.npz and path_<scale>_<d>_<beta>.npz per level and case.
+
+def level_solution(study: Path, scale: float, case: tuple[float, float], points: np.ndarray) -> np.ndarray:
+    """The study's solution of `case` on level `scale`, at `points` (k, 3); refuses an unfinished path."""
+    d, beta = case
+    path = study / f"path_{scale:g}_{d:g}_{beta:g}.npz"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: the study has not solved {d:g} mm, {beta:g} deg on level {scale:g}")
+    with np.load(path) as z:
+        if float(z["d_mm"]) < d - 1e-9:
+            raise ValueError(f"{path}: the path stopped at {float(z['d_mm']):g} mm of {d:g}; resume the study first")
+        u = z["u"].reshape(-1, 3)
+    return at_points(read_mesh(study / f"mesh_{scale:g}.npz"), u, points)
+
+
+def solved(study: Path, scale: float, case: tuple[float, float]) -> bool:
+    """Whether the study's path of `case` on level `scale` reached the case's displacement."""
+    path = study / f"path_{scale:g}_{case[0]:g}_{case[1]:g}.npz"
+    if not path.exists():
+        return False
+    with np.load(path) as z:
+        return float(z["d_mm"]) >= case[0] - 1e-9
+
+
+def case_levels(study: Path, scales: list[float], case: tuple[float, float]) -> list[float]:
+    """The three finest of `scales` that solved `case` (a case the finest level has not solved yet is judged
+    on the three below it); refuses a case with fewer than three."""
+    done = [s for s in scales if solved(study, s, case)]
+    if len(done) < 3:
+        raise ValueError(f"{case[0]:g} mm, {case[1]:g} deg: solved on levels {done or 'none'} of {scales} in {study}; "
+                         "the estimate needs three (run the study first)")
+    return done[-3:]
+
+
+def converged_estimate(study: Path, scales: list[float], case: tuple[float, float], points: np.ndarray,
+                       order: Richardson | None = None) -> tuple[list[float], np.ndarray, np.ndarray, Richardson]:
+    """The converged estimate of `case` at `points` (k, 3) from a study folder: (the three levels used,
+    the fine level's answer u1 (k, 3), its GCI band (k,) in mm, the order used).
+
+    Any other answer v at the same points (a model's, another mesh's FE) is then within
+    |v - u1| + band of the converged value, point by point. The order is that of the mean |u| over
+    `points` unless `order` is given (pass the one from a whole mesh's nodes to judge a few points with it).
+    """
+    used = case_levels(study, scales, case)
+    ratio = (used[0] / used[1], used[1] / used[2])
+    u3, u2, u1 = (level_solution(study, s, case, points) for s in used)
+    band, order = field_gci(u3, u2, u1, ratio, order)
+    return used, u1, band, order

@@ -33,39 +33,7 @@ import numpy as np
 
 from contracts.mesh import read_mesh
 from contracts.model import onnx_session, read_model_folder
-from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, at_points, field_gci
-
-
-def level_solution(study: Path, scale: float, case: tuple[float, float], points: np.ndarray) -> np.ndarray:
-    """The study's solution of `case` on level `scale`, at `points` (k, 3); refuses an unfinished path."""
-    d, beta = case
-    path = study / f"path_{scale:g}_{d:g}_{beta:g}.npz"
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: the study has not solved {d:g} mm, {beta:g} deg on level {scale:g}")
-    with np.load(path) as z:
-        if float(z["d_mm"]) < d - 1e-9:
-            raise ValueError(f"{path}: the path stopped at {float(z['d_mm']):g} mm of {d:g}; resume the study first")
-        u = z["u"].reshape(-1, 3)
-    return at_points(read_mesh(study / f"mesh_{scale:g}.npz"), u, points)
-
-
-def solved(study: Path, scale: float, case: tuple[float, float]) -> bool:
-    """Whether the study's path of `case` on level `scale` reached the case's displacement."""
-    path = study / f"path_{scale:g}_{case[0]:g}_{case[1]:g}.npz"
-    if not path.exists():
-        return False
-    with np.load(path) as z:
-        return float(z["d_mm"]) >= case[0] - 1e-9
-
-
-def case_levels(study: Path, scales: list[float], case: tuple[float, float]) -> list[float]:
-    """The three finest of `scales` that solved `case` (a case the finest level has not solved yet is judged
-    on the three below it); refuses a case with fewer than three."""
-    done = [s for s in scales if solved(study, s, case)]
-    if len(done) < 3:
-        raise ValueError(f"{case[0]:g} mm, {case[1]:g} deg: solved on levels {done or 'none'} of {scales} in {study}; "
-                         "the estimate needs three (run the study first)")
-    return done[-3:]
+from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, converged_estimate
 
 
 def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
@@ -80,10 +48,7 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
                "all_nodes": np.arange(len(mesh.nodes))}
     out = {"cases": {}}
     for case in cases:
-        used = case_levels(study, scales, case)
-        ratio = (used[0] / used[1], used[1] / used[2])
-        u3, u2, u1 = (level_solution(study, s, case, mesh.nodes) for s in used)
-        band, order = field_gci(u3, u2, u1, ratio)
+        used, u1, band, order = converged_estimate(study, scales, case, mesh.nodes)
         m = session.run(None, {"guide": np.array([case], np.float32)})[0][0].astype(np.float64)
         gap = np.linalg.norm(m - u1, axis=1)
         e = gap + band

@@ -136,3 +136,34 @@ def test_a_level_under_the_three_analysed_gets_the_same_bound_by_its_scale():
         assert row[region]["bound_by_scale_mm"]["2.197"]["max"] == pytest.approx(bound)
     assert bound >= h * h
     assert row["markers"][0]["gci_vector_mm"] == three["cases"]["c"]["markers"][0]["gci_vector_mm"]
+
+
+def _study_folder(folder, mesh, solved_to):
+    """A study folder as run_study leaves it: the tiny mesh at every level, and u = (1 + h^2) g(x) with g
+    linear (P2 interpolates it exactly) on each level h; solved_to: {scale: the path's last displacement}."""
+    from contracts.mesh import write_mesh
+
+    g = np.zeros_like(mesh.nodes)
+    g[:, 0] = mesh.nodes[:, 0] + 100.0
+    for h, d in solved_to.items():
+        write_mesh(folder / f"mesh_{h:g}.npz", mesh)
+        np.savez(folder / f"path_{h:g}_10_0.npz", u=((1 + h * h) * g).ravel(), d_mm=d)
+    return lambda p: np.stack([p[:, 0] + 100.0, 0 * p[:, 0], 0 * p[:, 0]], axis=1)
+
+
+def test_converged_estimate_is_the_fine_level_and_its_band_at_any_point(tiny_mesh, tmp_path):
+    """Levels 1.69 / 1.3 / 1 (ratio 1.3, order 2 exactly): at points between the nodes, u1 = 2 g and the band is
+    Fs |u1 - u2| / (1.3^2 - 1) = Fs |g|, which holds the true error |u1 - g| = |g|; a finer level whose path stopped
+    short is passed over, and a case on fewer than three levels is refused by name."""
+    from fem_offline.convergence import converged_estimate
+
+    g = _study_folder(tmp_path, tiny_mesh, {1.69: 10.0, 1.3: 10.0, 1.0: 10.0, 0.769: 7.5})
+    points = tiny_mesh.nodes[tiny_mesh.tets[:20, :4]].mean(axis=1)  # tet centroids: no node among them
+    used, u1, band, order = converged_estimate(tmp_path, [1.69, 1.3, 1.0, 0.769], (10.0, 0.0), points)
+    assert used == [1.69, 1.3, 1.0] and order.kind == "monotonic" and order.order == pytest.approx(2.0, rel=1e-9)
+    np.testing.assert_allclose(u1, 2 * g(points), rtol=1e-9)
+    np.testing.assert_allclose(band, SAFETY * np.linalg.norm(g(points), axis=1), rtol=1e-9)
+    assert np.all(band >= np.linalg.norm(u1 - g(points), axis=1))
+    (tmp_path / "path_1.3_10_0.npz").unlink()
+    with pytest.raises(ValueError, match=r"10 mm, 0 deg: solved on levels \[1\.69, 1\.0\] .*needs three"):
+        converged_estimate(tmp_path, [1.69, 1.3, 1.0, 0.769], (10.0, 0.0), points)

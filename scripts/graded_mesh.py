@@ -1,0 +1,133 @@
+"""Meshes graded where the error is, judged against the converged estimate of a grid-convergence study.
+
+    python scripts/graded_mesh.py --sizes 15.6:4:2 15.6:3.08:1.54 [--study runs/convergence_contact_taylor_hood] \
+        [--scales 1.3 1 0.769 0.5917] [--out runs/graded] [--json docs/graded_mesh.json]
+
+Each --sizes MAX:PROSTATE:GUIDE sets the scene's [mesh] sizes (mm): far from everything, at the prostate
+(growing to MAX over 25 mm) and around the guide tip. Unlike the study's levels, which scale all three
+together, these refine only near the prostate or the tip. Each mesh solves the hard cases (resumably, every
+load step checkpointed under --out) with the study's physics (default.toml, the tip in contact, the
+Taylor-Hood element, 0.5 mm load steps), and is judged as the study judges a level coarser than its
+three: per point, |u_mesh - u_fine| + GCI_fine (fem_offline.convergence.converged_estimate), at the
+study's probe points (its 8 markers, 3 interior points and the 886 prostate-surface nodes of its scale-1
+mesh, so that the surface figure includes interpolation between the graded mesh's own nodes) and at the
+graded mesh's own prostate-surface nodes and every node. Prints one line per mesh and case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from contracts.mesh import read_mesh, write_mesh
+from fem_offline.convergence import (HARD_CASES, NEAR_TIP_MM, at_points, case_levels, converged_estimate, probe_points,
+                                     solve_resumable, study_scene)
+from fem_offline.meshing import mesh_for_scene
+from fem_offline.problem import build_problem
+
+
+def sizes_arg(text: str) -> tuple[float, float, float]:
+    try:
+        mx, prostate, guide = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--sizes: {text!r} is not MAX:PROSTATE:GUIDE in mm (e.g. 15.6:4:2)") from None
+    if min(mx, prostate, guide) <= 0.05 or max(prostate, guide) > mx:
+        raise argparse.ArgumentTypeError(f"--sizes: {text!r} needs 0.05 < PROSTATE, GUIDE <= MAX")
+    return mx, prostate, guide
+
+
+def tag(sizes) -> str:
+    """The sizes, exact (15.600000000000001 = 12 x 1.3 meshes differently from 15.6), as a folder name."""
+    return "_".join(repr(float(s)).removesuffix(".0") for s in sizes)
+
+
+def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> dict:
+    """Mesh with `sizes`, solve `cases`, and bound each answer's distance to the study's converged estimate."""
+    mx, prostate, guide = sizes
+    scene = scene.model_copy(update={"mesh": scene.mesh.model_copy(
+        update={"max_mm": mx, "prostate_mm": prostate, "guide_mm": guide})})
+    folder = out / tag(sizes)
+    folder.mkdir(parents=True, exist_ok=True)
+    if not (folder / "mesh.npz").exists():  # gmsh is not bit-reproducible: keep the mesh
+        write_mesh(folder / "mesh.npz", mesh_for_scene(scene))
+    mesh = read_mesh(folder / "mesh.npz")
+    probes = probe_points(read_mesh(study / "mesh_1.npz"), scene)
+    tip = np.asarray(scene.guide.tip_mm)
+    near_probe = np.linalg.norm(probes["prostate_surface"] - tip, axis=1) < NEAR_TIP_MM
+    surface = np.asarray(mesh.node_sets["prostate_surface"])
+    near_own = np.linalg.norm(mesh.nodes[surface] - tip, axis=1) < NEAR_TIP_MM
+    problem = build_problem(scene, mesh)
+    row = {"sizes_mm": {"max": mx, "prostate": prostate, "guide": guide}, "n_tets": len(mesh.tets),
+           "n_nodes": len(mesh.nodes), "cases": {}}
+    for d, beta in cases:
+        logging.info("sizes %s (%d tets): %g mm, %g deg", tag(sizes), len(mesh.tets), d, beta)
+        u, seconds = solve_resumable(problem, d, beta, folder / f"path_{d:g}_{beta:g}.npz")
+        used, u1, band, order = converged_estimate(study, scales, (d, beta), mesh.nodes)
+        e_own = np.linalg.norm(u - u1, axis=1) + band
+        at = {}
+        for k in ("markers", "interior", "prostate_surface"):
+            _, p1, pband, _ = converged_estimate(study, scales, (d, beta), probes[k], order)
+            at[k] = np.linalg.norm(at_points(mesh, u, probes[k]) - p1, axis=1) + pband
+        row["cases"][f"{d:g} mm, {beta:g} deg"] = {
+            "seconds": seconds, "levels": used,
+            "markers_mm": float(at["markers"].max()), "interior_mm": float(at["interior"].max()),
+            "surface_probes_mm": {"max": float(at["prostate_surface"].max()),
+                                  "near_tip_max": float(at["prostate_surface"][near_probe].max()),
+                                  "rest_max": float(at["prostate_surface"][~near_probe].max())},
+            "surface_own_nodes_mm": {"max": float(e_own[surface].max()), "near_tip_max": float(e_own[surface[near_own]].max()),
+                                     "rest_max": float(e_own[surface[~near_own]].max())},
+            "all_nodes_mm": float(e_own.max())}
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", type=sizes_arg, nargs="+", required=True, metavar="MAX:PROSTATE:GUIDE")
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"))
+    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],
+                    help="the study's levels, coarsest first; per case its three finest solved give the estimate")
+    ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG", help="default: the hard cases")
+    ap.add_argument("--out", type=Path, default=Path("runs/graded"))
+    ap.add_argument("--json", type=Path, default=Path("docs/graded_mesh.json"))
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
+    try:
+        if not (args.study / "mesh_1.npz").exists():
+            raise FileNotFoundError(f"--study: {args.study / 'mesh_1.npz'} not found (run the convergence study first)")
+        for case in cases:  # refuse before any solving
+            case_levels(args.study, args.scales, case)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    scene = study_scene(args.scene, contact=True, step_mm=0.5, volumetric="taylor_hood")
+    t0 = time.perf_counter()
+    previous = json.loads(args.json.read_text()) if args.json.exists() else {}
+    meshes = {m["tag"]: m for m in previous.get("meshes", [])}
+    for sizes in args.sizes:
+        row = judge(scene, sizes, args.study, args.scales, cases, args.out)
+        meshes[tag(sizes)] = {"tag": tag(sizes), **row}
+        for case, r in row["cases"].items():
+            print(f"sizes {tag(sizes)} ({row['n_tets']} tets), {case} ({r['seconds'] / 60:.1f} min): vs converged, "
+                  f"markers {r['markers_mm']:.3f} mm, interior {r['interior_mm']:.3f}, surface at the study's points "
+                  f"{r['surface_probes_mm']['max']:.3f} (near tip {r['surface_probes_mm']['near_tip_max']:.3f}, rest "
+                  f"{r['surface_probes_mm']['rest_max']:.3f}), at its own nodes {r['surface_own_nodes_mm']['max']:.3f}, "
+                  f"every node {r['all_nodes_mm']:.3f}", flush=True)
+    result = {"kind": "graded_mesh", "study": str(args.study), "scales": args.scales,
+              "command": "python scripts/graded_mesh.py --sizes " + " ".join(tag(s).replace("_", ":") for s in args.sizes),
+              "meshes": sorted(meshes.values(), key=lambda m: m["n_tets"])}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {args.json} ({time.perf_counter() - t0:.0f} s this run)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
