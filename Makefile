@@ -77,13 +77,14 @@ bench-service: $(STAMP)
 	$(PY) scripts/bench_service.py --model $(MODEL)
 
 # Accuracy vs time on the end-to-end error (docs/tradeoff.*): $(RUNS) must be a sweep on one level of the
-# convergence study ($(CONVERGENCE)), e.g. RUNS=runs/default_th (the default's Taylor-Hood sweep); the tiny-mesh
-# check builds its two sweeps once.
+# convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default_graded (the
+# default's sweep); the tiny-mesh check builds its two sweeps once.
 # The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
-CONVERGENCE ?= docs/convergence_contact_taylor_hood.json
+CONVERGENCE ?= docs/convergence_contact_taylor_hood_4levels.json
+GRADED ?= docs/graded_mesh.json
 tradeoff: $(STAMP)
 	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
-	    --mesh-check runs/tiny_mesh_check
+	    --graded $(GRADED) --mesh-check runs/tiny_mesh_check
 
 # The grid-convergence studies of both guide-wall models (docs/convergence_contact.*, docs/convergence.*)
 # and their comparison (docs/contact_vs_glued.*); resumable: run it again to go on.

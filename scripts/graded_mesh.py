@@ -10,8 +10,9 @@ load step checkpointed under --out) with the study's physics (default.toml, the 
 Taylor-Hood element, 0.5 mm load steps), and is judged as the study judges a level coarser than its
 three: per point, |u_mesh - u_fine| + GCI_fine (fem_offline.convergence.converged_estimate), at the
 study's probe points (its 8 markers, 3 interior points and the 886 prostate-surface nodes of its scale-1
-mesh, so that the surface figure includes interpolation between the graded mesh's own nodes) and at the
-graded mesh's own prostate-surface nodes and every node. Prints one line per mesh and case.
+mesh, so that the surface figure includes interpolation between the graded mesh's own nodes; and all its
+nodes, as the study's "every node") and at the graded mesh's own prostate-surface nodes and every node.
+Prints one line per mesh and case.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
         used, u1, band, order = converged_estimate(study, scales, (d, beta), mesh.nodes)
         e_own = np.linalg.norm(u - u1, axis=1) + band
         at = {}
-        for k in ("markers", "interior", "prostate_surface"):
+        for k in ("markers", "interior", "prostate_surface", "nodes"):
             _, p1, pband, _ = converged_estimate(study, scales, (d, beta), probes[k], order)
             at[k] = np.linalg.norm(at_points(mesh, u, probes[k]) - p1, axis=1) + pband
         row["cases"][f"{d:g} mm, {beta:g} deg"] = {
@@ -82,7 +83,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
                                   "rest_max": float(at["prostate_surface"][~near_probe].max())},
             "surface_own_nodes_mm": {"max": float(e_own[surface].max()), "near_tip_max": float(e_own[surface[near_own]].max()),
                                      "rest_max": float(e_own[surface[~near_own]].max())},
-            "all_nodes_mm": float(e_own.max())}
+            "all_nodes_mm": float(e_own.max()), "all_nodes_probes_mm": float(at["nodes"].max())}
     return row
 
 

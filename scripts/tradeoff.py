@@ -1,9 +1,11 @@
 """What accuracy costs in time, end to end: mesh level x PCA rank x network on one Pareto front -> docs/tradeoff.{md,png}.
 
-    python scripts/tradeoff.py --sweep runs/default_conv --offgrid runs/default_conv/offgrid \\
-        --convergence docs/convergence.json --mesh-check runs/tiny_mesh_check [--out docs]
+    python scripts/tradeoff.py --sweep runs/default_graded --offgrid runs/default_graded/offgrid \\
+        --convergence docs/convergence_contact_taylor_hood_4levels.json --graded docs/graded_mesh.json \\
+        --mesh-check runs/tiny_mesh_check [--out docs]
 
-Every configuration (mesh level L of the convergence study, PCA rank r, network w) is one point:
+Every configuration (mesh level L of the convergence study or a graded mesh judged against it, PCA rank r,
+network w) is one point:
   error    end to end, per region: e_surrogate(r, w) + e_FE(L) (training/tradeoff.py states both):
            the model against the best converged estimate, not against its own mesh's FE. Regions:
            markers on every level; prostate surface and every node (in the table) on every level
@@ -43,8 +45,8 @@ import numpy as np  # noqa: E402
 from contracts.model import onnx_session, read_manifest  # noqa: E402
 from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, region_errors, training_set  # noqa: E402
 from training.snapshots import read_offgrid, read_sweep, valid_part  # noqa: E402
-from training.tradeoff import (decode_seconds, end_to_end, level_errors, makespan, pareto_mask,  # noqa: E402
-                               shaped_graph, solved_path_seconds, sweep_estimate)
+from training.tradeoff import (decode_seconds, end_to_end, graded_levels, level_errors, makespan,  # noqa: E402
+                               pareto_mask, shaped_graph, solved_path_seconds, sweep_estimate)
 
 RANKS = (8, 16, 24, 32, 40, 48, 64)
 NETWORKS = ((30, 1), (60, 1), (120, 1), (160, 1), (60, 2))  # (width, depth)
@@ -97,14 +99,14 @@ def points(configs, levels, sweep_level, sweep, repeat: int) -> list[dict]:
         k = len(surface) if own else int(round(len(surface) * (lv.n_nodes / sweep_level.n_nodes) ** (2 / 3)))
         for c in configs:
             model = c["onnx"] if own else shaped_graph(c["layers"], lv.n_nodes)
-            pts.append({"scale": lv.scale, "n_tets": lv.n_tets, "n_nodes": lv.n_nodes, "rank": c["rank"],
+            pts.append({"level": lv.label, "n_tets": lv.n_tets, "n_nodes": lv.n_nodes, "rank": c["rank"],
                         "net": f"{c['depth']}x{c['width']}", "surrogate_mm": c["surrogate_mm"], "fe_mm": lv.fe_mm,
                         "e2e_mm": end_to_end(c["surrogate_mm"], lv.fe_mm), "train_s": c["train_s"],
                         "iterations": c["iterations"], "latency_s": decode_seconds(model, repeat=repeat),
                         "surface_latency_s": decode_seconds(model, surface if own else np.arange(k), repeat=repeat),
                         "surface_nodes": k, "surface_nodes_estimated": not own,
                         "default": own and (c["rank"], c["width"], c["depth"]) == DEFAULT})
-        print(f"  level {lv.scale:g} ({lv.n_tets} tets): timed {len(configs)} graphs", flush=True)
+        print(f"  {lv.label} ({lv.n_tets} tets): timed {len(configs)} graphs", flush=True)
     for region in SHOWN:
         idx = [i for i, p in enumerate(pts) if region in p["e2e_mm"]]
         mask = pareto_mask([pts[i]["latency_s"] for i in idx], [pts[i]["e2e_mm"][region] for i in idx])
@@ -158,20 +160,22 @@ def figure(pts, levels, build, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(17, 5.5))
-    colours = dict(zip(sorted({p["scale"] for p in pts}, reverse=True), ("tab:red", "tab:orange", "tab:blue", "tab:green")))
+    order = [lv.label for lv in sorted(levels, key=lambda lv: lv.n_tets)]
+    colours = dict(zip(order, ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink",
+                               "tab:olive", "tab:cyan", "tab:gray")))
     shapes = dict(zip([f"{d}x{w}" for w, d in NETWORKS], "osDv^"))
-    tets = {lv.scale: lv.n_tets for lv in levels}
+    tets = {lv.label: lv.n_tets for lv in levels}
     for ax, region in zip(axes[:2], SHOWN):
         sub = [p for p in pts if region in p["e2e_mm"]]
         for p in sub:
-            ax.scatter(p["latency_s"] * 1e3, p["e2e_mm"][region], c=colours[p["scale"]], marker=shapes[p["net"]],
+            ax.scatter(p["latency_s"] * 1e3, p["e2e_mm"][region], c=colours[p["level"]], marker=shapes[p["net"]],
                        s=12 + 2 * p["rank"], alpha=0.75, edgecolors="k" if p[f"pareto_{region}"] else "none")
         front = sorted((p for p in sub if p[f"pareto_{region}"]), key=lambda p: p["latency_s"])
         ax.step([p["latency_s"] * 1e3 for p in front], [p["e2e_mm"][region] for p in front], "k--", lw=1, where="post",
                 label="Pareto front")
         last = None
         for p in front:  # label the front where it moves on: a new level or 1.3x the last label's latency
-            if last is None or p["scale"] != last["scale"] or p["latency_s"] > 1.3 * last["latency_s"]:
+            if last is None or p["level"] != last["level"] or p["latency_s"] > 1.3 * last["latency_s"]:
                 ax.annotate(f"r{p['rank']} {p['net']}", (p["latency_s"] * 1e3, p["e2e_mm"][region]), fontsize=7,
                             xytext=(3, 4), textcoords="offset points")
                 last = p
@@ -183,19 +187,19 @@ def figure(pts, levels, build, out: Path) -> None:
                ylabel=f"end-to-end error at the {region.replace('_', ' ')} (mm, max)",
                title=f"{region.replace('_', ' ')}: surrogate + FE vs the converged estimate")
         ax.grid(True, which="both", alpha=0.3)
-    for scale, col in colours.items():
-        axes[0].scatter([], [], c=col, label=f"{tets[scale]:,} tets (sizes x {scale:g})")
+    for level, col in colours.items():
+        axes[0].scatter([], [], c=col, label=f"{tets[level]:,} tets ({level})")
     for net, m in shapes.items():
         axes[0].scatter([], [], c="grey", marker=m, label=f"network {net}")
     axes[0].legend(fontsize=7, title="marker size: PCA rank 8..48", title_fontsize=7)
     axes[1].legend(fontsize=7)
     ax = axes[2]
     for p in pts:
-        ax.scatter(build[p["scale"]]["estimate_s"] + p["train_s"], p["e2e_mm"]["markers"], c=colours[p["scale"]],
+        ax.scatter(build[p["level"]]["estimate_s"] + p["train_s"], p["e2e_mm"]["markers"], c=colours[p["level"]],
                    marker=shapes[p["net"]], s=12 + 2 * p["rank"], alpha=0.75)
-    for scale, b in build.items():
+    for level, b in build.items():
         if b.get("measured_s") is not None:
-            ax.axvline(b["measured_s"], color=colours[scale], ls=":", lw=1, label=f"measured sweep, {tets[scale]:,} tets")
+            ax.axvline(b["measured_s"], color=colours[level], ls=":", lw=1, label=f"measured sweep, {tets[level]:,} tets")
     ax.set(xlabel="offline build (s): sweep (estimated) + PCA and training",
            ylabel="end-to-end error at the markers (mm, max)", title="what a build costs offline (2 workers)")
     ax.grid(True, alpha=0.3)
@@ -219,9 +223,9 @@ def level_lines(levels, build, sweep_level) -> list[str]:
     lines = ["| mesh | nodes | e_FE markers | e_FE prostate surface | e_FE every node | full-push solve (one path) "
              "| sweep, estimated | sweep, measured |", "|---|---|---|---|---|---|---|---|"]
     for lv in levels:
-        b = build[lv.scale]
+        b = build[lv.label]
         own = " (the sweep's)" if lv is sweep_level else ""
-        lines.append(f"| {lv.n_tets:,} tets, sizes x {lv.scale:g}{own} | {lv.n_nodes:,} | {fmt(lv.fe_mm.get('markers'))} | "
+        lines.append(f"| {lv.n_tets:,} tets, {lv.label}{own} | {lv.n_nodes:,} | {fmt(lv.fe_mm.get('markers'))} | "
                      f"{fmt(lv.fe_mm.get('prostate_surface'))} | {fmt(lv.fe_mm.get('all_nodes'))} | {lv.path_seconds:.0f} s | "
                      f"{duration(b['estimate_s'])} | {duration(b['measured_s']) if b['measured_s'] else '—'} |")
     return lines
@@ -275,7 +279,8 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         f"Written by `{meta['command']}` in {meta['seconds']:.0f} s on this machine (2 cores; latencies are medians, "
         "and this machine is shared, so differences of about 0.01 ms are noise).", "",
         "Each point is a configuration: a mesh level L of the grid-convergence study "
-        f"([{meta['convergence']}]({Path(meta['convergence']).name})), a PCA rank and a network. Its error is **end "
+        f"([{meta['convergence']}]({Path(meta['convergence']).name})) or a mesh graded where the error is, judged "
+        f"against the same study ({meta['graded']}), a PCA rank and a network. Its error is **end "
         "to end**: the surrogate's error against its own mesh's FE plus that mesh's FE error against the best converged "
         "estimate (`training/tradeoff.py`), max over the region's points and the cases. Its time is the **online "
         "latency**: one onnxruntime call of the exported float32 graph (1 thread, batch 1, median). The offline build "
@@ -284,7 +289,8 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate surface "
         "and every node only as summaries of the three analysed levels (a coarser level's pointwise bound, max over "
         "the points; studies analysed before the coarse bound was stored give the two finest), so the surface panel "
-        "has those levels only, and every node the same (table).",
+        "has those levels only, and every node the same (table). A graded mesh (`scripts/graded_mesh.py`): the same "
+        "bound, |u − u_finest| plus the finest's band, at the study's markers, surface points and nodes.",
         f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the only "
         f"840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "
         f"({meta['n_held_out']} cases). **Assumed**: the same (rank, network) errs as much on "
@@ -305,7 +311,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         f"{ms(d['latency_s'])} (all nodes), {ms(d['surface_latency_s'])} (surface); {d['iterations']} L-BFGS "
         "iterations in this run.", "", *meta["committed"],
         "## Mesh levels", "", *level_lines(levels, build, sweep_level), "",
-        f"At the sweep's level the estimate is {build[sweep_level.scale]['estimate_s'] / build[sweep_level.scale]['measured_s']:.2f}x "
+        f"At the sweep's level the estimate is {build[sweep_level.label]['estimate_s'] / build[sweep_level.label]['measured_s']:.2f}x "
         "the measured sweep: the study's solve times (one path from rest, at the study's load step, which may be "
         "larger than the sweep's 0.25 mm, on a machine shared with other jobs) are a rough scale for the others.", "",
         "## Pareto points", "",
@@ -358,6 +364,8 @@ def main() -> int:
     ap.add_argument("--offgrid", type=Path, default=Path("runs/default_conv/offgrid"))
     ap.add_argument("--convergence", type=Path, default=Path("docs/convergence.json"),
                     help="scripts/convergence_study.py's JSON (e.g. docs/convergence_contact.json)")
+    ap.add_argument("--graded", type=Path, help="scripts/graded_mesh.py's JSON: graded meshes judged against the same "
+                    "study, as more levels (e.g. docs/graded_mesh.json)")
     ap.add_argument("--mesh-check", type=Path, help="folder of the tiny scene's sweeps for the mesh check (built if missing)")
     ap.add_argument("--model", type=Path, default=Path("models/default"),
                     help="the committed model of the default configuration, quoted beside this run's fit")
@@ -367,21 +375,29 @@ def main() -> int:
     t0 = time.perf_counter()
     sweep = read_sweep(args.sweep)
     levels = level_errors(json.loads(args.convergence.read_text()))
+    if args.graded:
+        try:
+            levels = sorted(levels + graded_levels(json.loads(args.graded.read_text())), key=lambda lv: lv.n_tets)
+        except (ValueError, KeyError) as exc:
+            raise SystemExit(f"--graded: {args.graded}: {exc}") from None
     own = (len(sweep.mesh.tets), len(sweep.mesh.nodes))
     sweep_level = next((lv for lv in levels if (lv.n_tets, lv.n_nodes) == own), None)
     if sweep_level is None:
-        raise SystemExit(f"--convergence: no level of {args.convergence} has the sweep's {own[0]} tets and {own[1]} nodes")
+        raise SystemExit(f"--convergence/--graded: no level of {args.convergence} or graded mesh has the sweep's "
+                         f"{own[0]} tets and {own[1]} nodes")
     checks = mesh_check(args.mesh_check) if args.mesh_check else []
     print("fits on the sweep ...", flush=True)
     configs = fit_configs(sweep, args.offgrid, RANKS, NETWORKS)
     print("decode latency ...", flush=True)
     pts = points(configs, levels, sweep_level, sweep, args.repeat)
     paths = solved_path_seconds(sweep.manifest)
-    build = {lv.scale: {"estimate_s": sweep_estimate(lv.path_seconds, len(paths), WORKERS),
+    build = {lv.label: {"estimate_s": sweep_estimate(lv.path_seconds, len(paths), WORKERS),
                         "measured_s": makespan(paths, WORKERS) if lv is sweep_level else None} for lv in levels}
     args.out.mkdir(parents=True, exist_ok=True)
     figure(pts, levels, build, args.out)
+    graded = f"[{args.graded}]({args.graded.name})" if args.graded else "none in this run"
     meta = {"command": shlex.join(["python", "scripts/tradeoff.py", *sys.argv[1:]]), "convergence": str(args.convergence),
+            "graded": graded,
             "sweep": str(args.sweep), "surface_nodes": len(sweep.mesh.node_sets["prostate_surface"]), "n_paths": len(paths), "n_held_out": configs[0]["n_held_out"],
             "n_offgrid": configs[0]["n_held_out"] - len(PAPER_TEST_CASES),
             "committed": committed_line(args.model, sweep_level), "seconds": time.perf_counter() - t0}

@@ -40,13 +40,19 @@ _CASE = re.compile(r"^\s*([-+0-9.eE]+) mm, ([-+0-9.eE]+) deg\s*$")  # run_study'
 
 @dataclass(frozen=True)
 class LevelFe:
-    """One mesh level of a convergence study: its size, its FE error per region (mm), its solve time."""
+    """One mesh (a level of a convergence study, or a graded mesh judged against it): its size, its FE error per
+    region (mm), its solve time."""
 
-    scale: float
+    scale: float | None  # the study's size multiplier; None for a graded mesh
     n_tets: int
     n_nodes: int
     fe_mm: dict[str, float]  # region -> e_FE; a region the study cannot give for this level is absent
     path_seconds: float  # mean solve time from rest of the full-push cases (the largest displacement)
+    name: str = ""  # "sizes x 1.3", "graded 15.6:4:2 mm"
+
+    @property
+    def label(self) -> str:
+        return self.name or f"sizes x {self.scale:g}"
 
 
 def gci_bands(analysis: dict, level: str = "fine") -> dict[str, float]:
@@ -73,6 +79,24 @@ def _full_push_seconds(level: dict) -> float:
     push = {case: float(_CASE.match(case).group(1)) for case in level["cases"]}
     d_max = max(push.values())
     return float(np.mean([level["cases"][c]["seconds"] for c, d in push.items() if d == d_max]))
+
+
+def graded_levels(data: dict) -> list[LevelFe]:
+    """e_FE per region for each mesh of scripts/graded_mesh.py's JSON, the bound `level_errors` gives a study
+    level: max over the cases of |u - u_finest| + the finest's band at the study's probe points (its markers, its
+    scale-1 mesh's surface nodes and every node of it)."""
+    if data.get("kind") != "graded_mesh":
+        raise ValueError("not scripts/graded_mesh.py's JSON (kind is not 'graded_mesh')")
+    out = []
+    for m in data["meshes"]:
+        rows = m["cases"].values()
+        fe = {"markers": max(r["markers_mm"] for r in rows),
+              "prostate_surface": max(r["surface_probes_mm"]["max"] for r in rows),
+              "all_nodes": max(r["all_nodes_probes_mm"] for r in rows)}
+        s = m["sizes_mm"]
+        out.append(LevelFe(None, int(m["n_tets"]), int(m["n_nodes"]), fe, _full_push_seconds(m),
+                           name=f"graded {s['max']:g}:{s['prostate']:g}:{s['guide']:g} mm"))
+    return out
 
 
 def _marker_error(level: dict, finest: dict, analysis: dict) -> float:

@@ -124,3 +124,29 @@ def test_a_level_under_the_analysed_three_with_a_stored_bound_gets_every_region(
     errs = level_errors(s)
     assert errs[0].fe_mm == pytest.approx({"markers": 0.92, "prostate_surface": 6.0, "all_nodes": 7.0})
     assert errs[0].fe_mm == pytest.approx(gci_bands(s["analysis"], "2"))
+
+
+def _graded():
+    """scripts/graded_mesh.py's JSON: one mesh, two cases (a full push and a half one)."""
+    def case(m, s, n, seconds):
+        return {"seconds": seconds, "markers_mm": m, "interior_mm": 0.0, "surface_probes_mm": {"max": s},
+                "surface_own_nodes_mm": {"max": 0.0}, "all_nodes_mm": 0.0, "all_nodes_probes_mm": n}
+    return {"kind": "graded_mesh", "meshes": [{"tag": "15.6_4_2", "sizes_mm": {"max": 15.6, "prostate": 4.0, "guide": 2.0},
+                                               "n_tets": 6810, "n_nodes": 10123,
+                                               "cases": {"10 mm, 0 deg": case(0.09, 0.15, 0.7, 120.0),
+                                                         "10 mm, 10 deg": case(0.08, 0.16, 0.6, 150.0),
+                                                         "5 mm, 5 deg": case(0.04, 0.08, 0.3, 90.0)}}]}
+
+
+def test_a_graded_mesh_is_a_level_with_every_region_at_the_studys_points():
+    """Max over the cases of each region's bound at the study's probe points (not at the mesh's own nodes), the
+    full-push mean as its path time, named by its sizes; another file is refused."""
+    from training.tradeoff import graded_levels
+
+    (lv,) = graded_levels(_graded())
+    assert lv.scale is None and lv.label == "graded 15.6:4:2 mm" and (lv.n_tets, lv.n_nodes) == (6810, 10123)
+    assert lv.fe_mm == {"markers": 0.09, "prostate_surface": 0.16, "all_nodes": 0.7}
+    assert lv.path_seconds == 135.0
+    assert end_to_end({"markers": 0.001, "prostate_surface": 0.002, "all_nodes": 0.01}, lv.fe_mm)["markers"] == pytest.approx(0.091)
+    with pytest.raises(ValueError, match="graded_mesh"):
+        graded_levels({"kind": "model_vs_converged"})
