@@ -128,7 +128,7 @@ DEFAULT_SCENE ?= fem_offline/scenes/default_graded.toml
 default-model: $(STAMP)
 	$(PY) -m fem_offline sweep --scene $(DEFAULT_SCENE) --out $(RUNS)
 	$(PY) -m fem_offline cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 8 --seed 0
-	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 160 --offgrid $(RUNS)/offgrid
+	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 120 --offgrid $(RUNS)/offgrid
 	$(MAKE) fe-error-taylor-hood
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.

@@ -50,7 +50,7 @@ from training.tradeoff import (decode_seconds, end_to_end, graded_levels, level_
 
 RANKS = (8, 16, 24, 32, 40, 48, 64)
 NETWORKS = ((30, 1), (60, 1), (120, 1), (160, 1), (60, 2))  # (width, depth)
-DEFAULT = (64, 160, 1)  # models/default: rank, width, depth
+DEFAULT = (64, 120, 1)  # models/default: rank, width, depth
 WORKERS = 2  # the sweep's default process count, as the measured sweep ran
 MESH_CHECK_SCALES = (1.69, 1.0)
 MESH_CHECK_RANKS = (8, 16, 24)
