@@ -1,20 +1,22 @@
 """The patient pipeline's FE against the converged estimate: the default phantom as a label map.
 
     python scripts/labelmap_truth.py [--spacing-mm 1] [--mesher cgal] [--facet-distance-voxels 0.5 1] \\
-        [--work runs/labelmap_truth] [--study runs/convergence_contact] [--json docs/labelmap_truth.json]
+        [--work runs/labelmap_truth] [--study runs/convergence_contact_taylor_hood] [--scales 1.3 1 0.769 0.5917] \\
+        [--json docs/labelmap_truth.json]
 
 A patient model's FE error has two parts that a grid-convergence study of the phantom does not see:
 the voxels (the tissue surfaces are a label map's staircase, smoothed) and the label-map mesher's
 tets. This measures both at once where the converged answer is known. The default phantom is
 voxelised (scripts/make_labelmap.py's generator), meshed from its labels with the patient defaults
-(fem_offline/scenes/patient.toml: the default's mesh sizes and physics) and solved at the grid-
-convergence study's hardest case (10 mm, beta = 0, from rest in 0.5 mm steps as the study). Its
-displacement is compared with the study's finest level (`make convergence`; its mesh and solution
-are read from --study) at the study's probe points: the 8 markers, the 3 interior points and the
-default mesh's prostate-surface nodes. The error against the converged estimate is then at most
-|u_labelmap - u_finest| + the finest level's GCI band (docs/convergence_contact.json), pointwise
-at the markers and interior points, as max over the surface; the same bound the study gives the
-default gmsh mesh (its "medium" bound) is printed beside it.
+(fem_offline/scenes/patient.toml: the default's mesh sizes and physics, its element) and solved at the
+grid-convergence study's hardest case (10 mm, beta = 0, from rest in 0.5 mm steps as the study). Its
+displacement is compared with the converged estimate of the Taylor-Hood study (`make fe-error-taylor-hood`;
+meshes and solutions read from --study; fem_offline.convergence.converged_estimate) at the study's probe
+points: the 8 markers, the 3 interior points and the scale-1 mesh's prostate-surface nodes. The error
+against the converged estimate is at most |u_labelmap - u_finest| + the finest level's GCI band, point by
+point; the same bound for the phantom's own gmsh mesh at the same sizes (the study's scale-1 level) is
+printed beside it. Rows are kept per voxel size, mesher, facet distance and element (solver.volumetric):
+the pointwise rows of earlier rounds stay, measured against the pointwise element's study.
 """
 
 from __future__ import annotations
@@ -63,48 +65,49 @@ def main() -> int:
     ap.add_argument("--facet-distance-voxels", type=float, nargs="+", default=[0.5],
                     help="CGAL's label_map.facet_distance_voxels, one run each")
     ap.add_argument("--work", type=Path, default=Path("runs/labelmap_truth"))
-    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact"),
-                    help="the contact grid-convergence study's folder (meshes and checkpoints)")
-    ap.add_argument("--convergence", type=Path, default=Path("docs/convergence_contact.json"))
+    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),
+                    help="the Taylor-Hood contact grid-convergence study's folder (meshes and checkpoints)")
+    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],
+                    help="its levels, coarsest first; the three finest that solved the case give the estimate")
     ap.add_argument("--json", type=Path, default=Path("docs/labelmap_truth.json"), help="rows merge into it by voxel, mesher, facets")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
 
     from contracts.mesh import read_mesh, write_mesh
-    from fem_offline.convergence import at_points, probe_points, solve_resumable
+    from fem_offline.convergence import (at_points, case_levels, converged_estimate, level_solution, probe_points,
+                                         solve_resumable)
     from fem_offline.meshing import load_or_build_mesh, mesh_for_scene
     from fem_offline.problem import build_problem
     from fem_offline.scene import load_scene
-    from training.tradeoff import gci_bands
 
-    study = json.loads(args.convergence.read_text())
-    fine_level, medium_level = study["analysis"]["levels"][-1], study["analysis"]["levels"][-2]
-    row = study["analysis"]["cases"][CASE_KEY]
-    f_scale, m_scale = fine_level["scale"], medium_level["scale"]
-    fine_mesh, medium_mesh = read_mesh(args.study / f"mesh_{f_scale:g}.npz"), read_mesh(args.study / f"mesh_{m_scale:g}.npz")
-    with np.load(args.study / f"path_{f_scale:g}_{CASE[0]:g}_{CASE[1]:g}.npz") as z:
-        if float(z["d_mm"]) < CASE[0] - 1e-9:
-            raise SystemExit(f"{args.study}: the finest level's path stopped at {float(z['d_mm']):g} mm; run make convergence")
-        u_fine = z["u"].reshape(-1, 3)
-    if m_scale != 1.0:
-        raise SystemExit(f"{args.convergence}: its second finest level is sizes x {m_scale:g}, not the default mesh")
+    if not (args.study / "mesh_1.npz").exists():
+        raise SystemExit(f"--study: {args.study / 'mesh_1.npz'} not found (run `make fe-error-taylor-hood` first)")
+    try:
+        used = case_levels(args.study, args.scales, CASE)
+    except ValueError as exc:
+        raise SystemExit(f"--study: {exc}") from None
     default = load_scene(Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "default.toml")
-    # the study's probe points: markers and interior as it stored them, the default mesh's prostate surface
-    probes = {k: np.asarray(v) for k, v in study["probes"].items()}
-    probes["prostate_surface"] = probe_points(medium_mesh, default)["prostate_surface"]
-    fine = {k: at_points(fine_mesh, u_fine, p) for k, p in probes.items()}
-    one_case = {"cases": {CASE_KEY: row}}  # training.tradeoff's bands, for this case alone
-    band = {"markers": np.array([r["gci_vector_mm"] for r in row["markers"]]),
-            "interior": np.array([r["gci_vector_mm"] for r in row["interior"]]),
-            "prostate_surface": gci_bands(one_case, "fine")["prostate_surface"]}
-    medium = gci_bands(one_case, "medium")
-    medium_bound = {"markers": medium["markers"], "interior": max(r["bound_medium_mm"] for r in row["interior"]),
-                    "prostate_surface": medium["prostate_surface"]}
-    out = {"case": CASE_KEY, "convergence": str(args.convergence), "finest_level_tets": fine_level["n_tets"],
-           "default_mesh_bound_mm": medium_bound, "rows": []}
+    # the study's probe points, taken from its scale-1 mesh (default.toml's sizes, as patient.toml's):
+    # the 8 markers, the 3 interior points, its prostate-surface nodes; and the order of the case from every node
+    default_mesh = read_mesh(args.study / "mesh_1.npz")
+    probes = probe_points(default_mesh, default)
+    _, _, _, order = converged_estimate(args.study, args.scales, CASE, probes.pop("nodes"))
+    truth = {k: converged_estimate(args.study, args.scales, CASE, p, order)[1:3] for k, p in probes.items()}
+    fine = {k: u1 for k, (u1, _) in truth.items()}
+    band = {k: b for k, (_, b) in truth.items()}
+    # the same bound for the phantom's own gmsh mesh at the same sizes (the study's scale-1 level), for comparison
+    medium_bound = {k: float((np.linalg.norm(level_solution(args.study, 1.0, CASE, p) - fine[k], axis=1) + band[k]).max())
+                    for k, p in probes.items()}
+    fine_tets = len(read_mesh(args.study / f"mesh_{used[-1]:g}.npz").tets)
+    out = {"case": CASE_KEY, "rows": []}
+    reference = {"study": str(args.study), "levels": used, "finest_level_tets": fine_tets,
+                 "phantom_mesh_bound_mm": medium_bound}
+    volumetric = load_scene(Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "patient.toml").solver.volumetric
     runs = [(s, f) for s in args.spacing_mm for f in (args.facet_distance_voxels if args.mesher == "cgal" else [None])]
     for spacing, facet in runs:
-        folder = args.work / (f"{spacing:g}mm_{args.mesher}" + (f"_facet{facet:g}" if facet else ""))
+        # a folder per element: a path's checkpoints belong to its physics (the pointwise rows' folders keep their names)
+        folder = args.work / (f"{spacing:g}mm_{args.mesher}" + (f"_facet{facet:g}" if facet else "")
+                              + ("" if volumetric == "pointwise" else f"_{volumetric}"))
         scene = label_map_scene(spacing_mm=spacing, mesher=args.mesher, facet_voxels=facet, folder=folder)
         mesh_s = None  # None: meshed by an earlier run (the mesh is kept: the path's checkpoint belongs to it)
         if not (folder / "mesh.npz").exists():
@@ -113,7 +116,8 @@ def main() -> int:
             mesh_s = time.perf_counter() - t0
         mesh = load_or_build_mesh(scene, folder / "mesh.npz")  # its node sets re-derived for the scene's guide
         u, seconds = solve_resumable(build_problem(scene, mesh), *CASE, folder / "path_10_0.npz")
-        result = {"spacing_mm": spacing, "mesher": args.mesher, "facet_distance_voxels": facet, "tets": len(mesh.tets),
+        result = {"spacing_mm": spacing, "mesher": args.mesher, "facet_distance_voxels": facet,
+                  "volumetric": scene.solver.volumetric, **reference, "tets": len(mesh.tets),
                   "nodes": len(mesh.nodes), "mesh_mm": scene.mesh.model_dump(), "mesh_s": mesh_s, "solve_s": seconds,
                   "regions": {}}
         label = f"{spacing:g} mm voxels, {args.mesher}" + (f" (facets {facet:g} voxel)" if facet else "") + f", {len(mesh.tets):,} tets"
@@ -128,11 +132,12 @@ def main() -> int:
                   f"(the default gmsh mesh: <= {medium_bound[k]:.3f} mm)", flush=True)
         print(f"  mesh {'kept' if mesh_s is None else f'{mesh_s:.1f} s'}, solve {seconds:.0f} s", flush=True)
         out["rows"].append(result)
-    key = lambda r: (r["spacing_mm"], r["mesher"], r["facet_distance_voxels"])  # noqa: E731
-    if args.json.exists():  # rows of earlier runs (other voxels, meshers, facets) are kept
+    key = lambda r: (r["spacing_mm"], r["mesher"], r["facet_distance_voxels"], r["volumetric"])  # noqa: E731
+    if args.json.exists():  # rows of earlier runs (other voxels, meshers, facets, elements) are kept
         done = {key(r) for r in out["rows"]}
         out["rows"] = [r for r in json.loads(args.json.read_text())["rows"] if key(r) not in done] + out["rows"]
-    out["rows"].sort(key=lambda r: (r["mesher"], -r["spacing_mm"], -(r["facet_distance_voxels"] or 0)))
+    out["rows"].sort(key=lambda r: (r["volumetric"] != "taylor_hood", r["mesher"], -r["spacing_mm"],
+                                    -(r["facet_distance_voxels"] or 0)))
     args.json.write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {args.json}")
     return 0

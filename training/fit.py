@@ -134,9 +134,10 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
 
 def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float], str] | None:
     """The FE error of a label-map model's mesh as estimated on the default phantom's label map
-    (scripts/labelmap_truth.py's JSON): the row with the same voxel size, mesher, CGAL facet distance
-    and mesh sizes, as (bands per region, what it is measured against); None for a phantom scene or
-    when no row matches. It covers the voxels and the mesher, not this anatomy: an estimate, said so."""
+    (scripts/labelmap_truth.py's JSON): the row with the same voxel size, mesher, CGAL facet distance, mesh
+    sizes and element (solver.volumetric), as (bands per region, what it is measured against); None for a
+    phantom scene or when no row matches. It covers the voxels and the mesher, not this anatomy: an estimate,
+    said so."""
     import json
 
     source = sweep_manifest.source
@@ -146,16 +147,18 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
     facet = spec.get("facet_distance_voxels", 0.5) if spec["mesher"] == "cgal" else None  # None: not CGAL's
     voxel = min(source.spacing_mm)
     data = json.loads(Path(path).read_text())
+    element = sweep_manifest.scene.get("solver", {}).get("volumetric", "pointwise")
     row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == spec["mesher"]
-                and r["facet_distance_voxels"] == facet and r.get("mesh_mm") == sweep_manifest.scene["mesh"]), None)
+                and r["facet_distance_voxels"] == facet and r.get("mesh_mm") == sweep_manifest.scene["mesh"]
+                and r.get("volumetric", "pointwise") == element), None)
     if row is None:
         return None
     bands = {k: row["regions"][k]["bound_max_mm"] for k in ("markers", "prostate_surface")}
     how = f"{row['mesher']}" + (f", facets within {facet:g} voxel" if facet is not None else "")
     text = (f"FE discretisation and voxelisation: estimated, not measured on this anatomy. The default phantom, "
-            f"voxelised at {voxel:g} mm and meshed as this model was ({how}; {row['tets']:,} tets), solved at "
-            f"{data['case']}, is within these bounds of the phantom's converged estimate: its distance to the "
-            f"grid-convergence study's finest level ({data['finest_level_tets']:,} tets) plus that level's grid "
+            f"voxelised at {voxel:g} mm, meshed as this model was ({how}; {row['tets']:,} tets) and solved with its "
+            f"element ({element}) at {data['case']}, is within these bounds of the phantom's converged estimate: its "
+            f"distance to the grid-convergence study's finest level ({row['finest_level_tets']:,} tets) plus that level's grid "
             f"convergence index (Fs 1.25), max over the points (scripts/labelmap_truth.py, {Path(path).name})")
     return bands, text
 

@@ -147,10 +147,11 @@ def test_fe_estimate_for_the_voxels_and_mesher_goes_into_the_manifest(built, tmp
     folder, model, _, _, voxel = built
     mesher = model.scene.spec["label_map"]["mesher"]
     row = {"spacing_mm": voxel, "mesher": mesher, "facet_distance_voxels": 0.5 if mesher == "cgal" else None,
-           "tets": 1000, "mesh_mm": model.scene.spec["mesh"],
+           "volumetric": model.scene.spec["solver"]["volumetric"], "tets": 1000, "finest_level_tets": 32252,
+           "mesh_mm": model.scene.spec["mesh"],
            "regions": {"markers": {"bound_max_mm": 0.3}, "prostate_surface": {"bound_max_mm": 0.7}}}
     truth = tmp_path / "truth.json"
-    truth.write_text(json.dumps({"case": "10 mm, 0 deg", "finest_level_tets": 16296, "rows": [row]}))
+    truth.write_text(json.dumps({"case": "10 mm, 0 deg", "rows": [row]}))
     work = folder / "work"
     est = fit(work / "sweep", tmp_path / "m", model.fit, offgrid=work / "offgrid", fe_estimate=truth, progress=False)
     regions = est.accuracy.regions
@@ -161,7 +162,8 @@ def test_fe_estimate_for_the_voxels_and_mesher_goes_into_the_manifest(built, tmp
     assert "estimated, not measured on this anatomy" in est.accuracy.reference
     assert "estimated, not measured on this anatomy" in (tmp_path / "m" / "report.md").read_text()
     other_sizes = {**row, "mesh_mm": {**row["mesh_mm"], "max_mm": 2 * row["mesh_mm"]["max_mm"]}}
-    truth.write_text(json.dumps({"case": "10 mm, 0 deg", "finest_level_tets": 16296,
-                                 "rows": [{**row, "spacing_mm": 2 * voxel}, other_sizes]}))
+    other_element = {**row, "volumetric": "mean_dilatation"}  # measured with another element: not this model's
+    truth.write_text(json.dumps({"case": "10 mm, 0 deg",
+                                 "rows": [{**row, "spacing_mm": 2 * voxel}, other_sizes, other_element]}))
     other = fit(work / "sweep", tmp_path / "m2", model.fit, offgrid=work / "offgrid", fe_estimate=truth, progress=False)
     assert other.accuracy.regions["markers"].end_to_end_mm is None and "not measured" in other.accuracy.reference
