@@ -1,6 +1,6 @@
 """The patient pipeline's FE against the converged estimate: the default phantom as a label map.
 
-    python scripts/labelmap_truth.py [--spacing-mm 1] [--mesher cgal] [--facet-distance-voxels 0.5 1] \\
+    python scripts/labelmap_truth.py [--spacing-mm 1] [--mesher cgal] [--facet-distance-voxels 0.5 1] [--volumetric E] \\
         [--work runs/labelmap_truth] [--study runs/convergence_contact_taylor_hood] [--scales 1.3 1 0.769 0.5917] \\
         [--json docs/labelmap_truth.json]
 
@@ -8,15 +8,16 @@ A patient model's FE error has two parts that a grid-convergence study of the ph
 the voxels (the tissue surfaces are a label map's staircase, smoothed) and the label-map mesher's
 tets. This measures both at once where the converged answer is known. The default phantom is
 voxelised (scripts/make_labelmap.py's generator), meshed from its labels with the patient defaults
-(fem_offline/scenes/patient.toml: the default's mesh sizes and physics, its element) and solved at the
+(fem_offline/scenes/patient.toml: the default's mesh sizes, physics and element) and solved at the
 grid-convergence study's hardest case (10 mm, beta = 0, from rest in 0.5 mm steps as the study). Its
 displacement is compared with the converged estimate of the Taylor-Hood study (`make fe-error-taylor-hood`;
 meshes and solutions read from --study; fem_offline.convergence.converged_estimate) at the study's probe
 points: the 8 markers, the 3 interior points and the scale-1 mesh's prostate-surface nodes. The error
 against the converged estimate is at most |u_labelmap - u_finest| + the finest level's GCI band, point by
 point; the same bound for the phantom's own gmsh mesh at the same sizes (the study's scale-1 level) is
-printed beside it. Rows are kept per voxel size, mesher, facet distance and element (solver.volumetric):
-the pointwise rows of earlier rounds stay, measured against the pointwise element's study.
+printed beside it. --volumetric solves with another element than patient.toml's (solver.volumetric). Rows
+are kept per voxel size, mesher, facet distance and element; one measured again replaces the old row (each
+row names the study it was judged against: rows of earlier rounds, against the pointwise element's study).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ CASE = (10.0, 0.0)
 CASE_KEY = "10 mm, 0 deg"
 
 
-def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | None, folder: Path):
+def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | None, volumetric: str, folder: Path):
     """The default phantom voxelised at spacing_mm into `folder`, and its label-map scene (patient.toml's settings)."""
     import tomli_w
 
@@ -53,7 +54,7 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
         data["label_map"]["facet_distance_voxels"] = facet_voxels
     base = load_scene(root / "patient.toml")  # the patient build's sweep and solver; the study's 0.5 mm steps
     data["sweep"] = base.sweep.model_dump(mode="json")
-    data["solver"] = base.solver.model_dump(mode="json") | {"max_step_mm": 0.5}
+    data["solver"] = base.solver.model_dump(mode="json") | {"max_step_mm": 0.5, "volumetric": volumetric}
     (folder / "scene.toml").write_text(tomli_w.dumps(data))
     return load_scene(folder / "scene.toml")
 
@@ -64,6 +65,8 @@ def main() -> int:
     ap.add_argument("--mesher", default="cgal", choices=("cgal", "tetgen"))
     ap.add_argument("--facet-distance-voxels", type=float, nargs="+", default=[0.5],
                     help="CGAL's label_map.facet_distance_voxels, one run each")
+    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation", "taylor_hood"),
+                    help="the element (solver.volumetric; default: patient.toml's)")
     ap.add_argument("--work", type=Path, default=Path("runs/labelmap_truth"))
     ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),
                     help="the Taylor-Hood contact grid-convergence study's folder (meshes and checkpoints)")
@@ -102,13 +105,15 @@ def main() -> int:
     out = {"case": CASE_KEY, "rows": []}
     reference = {"study": str(args.study), "levels": used, "finest_level_tets": fine_tets,
                  "phantom_mesh_bound_mm": medium_bound}
-    volumetric = load_scene(Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "patient.toml").solver.volumetric
+    volumetric = args.volumetric or load_scene(
+        Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "patient.toml").solver.volumetric
     runs = [(s, f) for s in args.spacing_mm for f in (args.facet_distance_voxels if args.mesher == "cgal" else [None])]
     for spacing, facet in runs:
         # a folder per element: a path's checkpoints belong to its physics (the pointwise rows' folders keep their names)
         folder = args.work / (f"{spacing:g}mm_{args.mesher}" + (f"_facet{facet:g}" if facet else "")
                               + ("" if volumetric == "pointwise" else f"_{volumetric}"))
-        scene = label_map_scene(spacing_mm=spacing, mesher=args.mesher, facet_voxels=facet, folder=folder)
+        scene = label_map_scene(spacing_mm=spacing, mesher=args.mesher, facet_voxels=facet, volumetric=volumetric,
+                                folder=folder)
         mesh_s = None  # None: meshed by an earlier run (the mesh is kept: the path's checkpoint belongs to it)
         if not (folder / "mesh.npz").exists():
             t0 = time.perf_counter()

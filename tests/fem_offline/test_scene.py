@@ -91,8 +91,7 @@ def test_extends_errors_name_the_file(tmp_path):
 
 def test_patient_base_scene_gives_a_label_map_scene_the_default_physics_and_a_4_degree_sweep(tmp_path):
     """What the README's short patient scene loads to: default materials, effects and mesh sizes, no
-    phantom, the patient sweep (6 angles x 20 displacements in 0.5 mm load steps: 6 paths) and the
-    Taylor-Hood element."""
+    phantom, and the patient sweep (6 angles x 20 displacements in 0.5 mm load steps: 6 paths)."""
     (tmp_path / "patient.toml").write_text(
         f'extends = "{SCENES / "patient.toml"}"\nname = "p"\n[label_map]\npath = "labels.nii.gz"\n'
         "[label_map.labels]\nprostate = 1\nrectal_wall = 2\n[guide]\ntip_mm = [1.0, -14.0, 35.0]\n")
@@ -103,6 +102,4 @@ def test_patient_base_scene_gives_a_label_map_scene_the_default_physics_and_a_4_
     assert scene.guide.tip_mm == (1.0, -14.0, 35.0) and scene.guide.axis == default.guide.axis
     assert len(scene.sweep.angles_deg) == 6 and np.allclose(scene.sweep.angles_deg, np.arange(-10, 11, 4))
     assert np.allclose(scene.sweep.displacements_mm, np.arange(0.5, 10.01, 0.5))
-    # the served default's element (default_graded.toml), not default.toml's pointwise one, which locks
-    served = load_scene(SCENES / "default_graded.toml")
-    assert scene.solver.max_step_mm == 0.5 and scene.solver.volumetric == served.solver.volumetric == "taylor_hood"
+    assert scene.solver.max_step_mm == 0.5 and scene.solver.volumetric == default.solver.volumetric
