@@ -113,10 +113,11 @@ GRADED_SIZES ?= 15.600000000000001:4:2 15.600000000000001:3.08:2.6 15.6000000000
 graded-mesh: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/graded_mesh.py --sizes $(GRADED_SIZES) --scales $(TH_SCALES)
 
-# Up to which displacement the linear model is a deformation (docs/linear_validity.*); seconds. With the
-# scene's nonlinear sweep in $(RUNS) it compares with it on the same mesh (e.g. RUNS=runs/default_conv).
+# Up to which displacement the linear model is a deformation (docs/linear_validity.*), on the default model's
+# scene; 2 min. With its nonlinear sweep in $(RUNS) (default-model's) it compares with it on the same mesh and
+# bounds det F of all its snapshots.
 linear-validity: $(STAMP)
-	$(PY) scripts/linear_validity.py $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS))
+	$(PY) scripts/linear_validity.py --scene $(DEFAULT_SCENE) $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS))
 
 # The committed models/default from scratch: sweep, off-grid cases (from rest), fit, then the
 # stamp of its end-to-end error against the Taylor-Hood study's converged estimate (fe-error-taylor-hood).

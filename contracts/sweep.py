@@ -9,17 +9,19 @@
 A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus reference_positions.
 
 A snapshot with det(I + grad u) <= 0 somewhere is not a deformation: an element is inside out. Each
-snapshot records min det F twice: `min_det_f` at the quadrature points the solver integrates at (4
-per tet), and `min_det_f_probe` at the denser probe points (fem_offline.validity.PROBE_INTORDER: the
+snapshot records min det F three times: `min_det_f` at the quadrature points the solver integrates at
+(4 per tet); `min_det_f_probe` at the denser probe points (fem_offline.validity.PROBE_INTORDER: the
 11 points per tet of the degree-4 rule), because a P2 field can invert between the solver's points
-while positive at them. The nonlinear solver never returns a state with min_det_f <= 0, but its
-min_det_f_probe can be; the linear model's superposition turns both <= 0 once the guide pushes far
+while positive at them; and `min_det_f_bound` over every point of every tet (fem_offline.validity.
+det_f_bound): > 0, a proven lower bound; <= 0, det F at a point where it is <= 0 (often a tet's corner,
+which no quadrature point reaches). The nonlinear solver never returns a state with min_det_f <= 0, but
+the other two can be; the linear model's superposition turns all three <= 0 once the guide pushes far
 enough. Such snapshots are written (they are the model's answer) but listed in `validity`, which
-counts a snapshot as inverted when either value is <= 0, and training reads `valid_up_to_mm` from it.
+counts a snapshot as inverted when any value is <= 0, and training reads `valid_up_to_mm` from it.
 
-Formats: 3 records min_det_f_probe; 2 (still read) did not, and its validity judged the solver's
-points only. A format-2 folder resumed by a sweep becomes format 3 with its old snapshots unprobed
-(`validity.n_unprobed` counts them). Folders written before the check have no `validity` at all:
+Formats: 4 records min_det_f_bound; 3 (still read) did not, 2 (still read) lacked min_det_f_probe too.
+A folder of an older format resumed by a sweep becomes format 4 with its old snapshots judged at the
+points they recorded (`validity.n_unprobed` and `n_unbounded` count them). Folders written before the check have no `validity` at all:
 `sweep_validity` derives it from a nonlinear folder's records (the solver measured them) and refuses
 a linear one (its records say 1.0 without having measured).
 """
@@ -37,8 +39,8 @@ from .envelope import Envelope
 from .files import atomic_savez, atomic_write_text, read_manifest_json, sha256
 from .mesh import TetMesh, read_mesh
 
-SWEEP_FORMAT = 3  # what this code writes
-READ_FORMATS = (2, 3)  # what it reads: format 2 lacks min_det_f_probe
+SWEEP_FORMAT = 4  # what this code writes
+READ_FORMATS = (2, 3, 4)  # what it reads: format 3 lacks min_det_f_bound, 2 min_det_f_probe too
 MANIFEST = "manifest.json"
 MESH_FILE = "mesh.npz"
 SNAPSHOTS = "snapshots"
@@ -58,6 +60,7 @@ class CaseRecord(_Frozen):
     min_det_f: float  # at the solver's quadrature points
     seconds: float
     min_det_f_probe: float | None = None  # at the probe points between them; None: not measured (not stored)
+    min_det_f_bound: float | None = None  # everywhere (> 0: a lower bound; <= 0: a value); None: not measured
 
 
 class SnapshotRecord(_Frozen):
@@ -71,11 +74,14 @@ class SnapshotRecord(_Frozen):
     seconds: float
     mirrored_from: str | None = None
     min_det_f_probe: float | None = None  # at the probe points (11 per tet); None: written before format 3
+    min_det_f_bound: float | None = None  # everywhere (fem_offline.validity.det_f_bound); None: before format 4
 
     @property
     def lowest_det_f(self) -> float:
-        """The lower of min_det_f and min_det_f_probe (NaN if either is): <= 0 or NaN means inverted."""
-        return self.min_det_f if self.min_det_f_probe is None else float(np.minimum(self.min_det_f, self.min_det_f_probe))
+        """The lowest of min_det_f, min_det_f_probe and min_det_f_bound recorded (NaN if any is): <= 0 or NaN means
+        inverted."""
+        values = [v for v in (self.min_det_f, self.min_det_f_probe, self.min_det_f_bound) if v is not None]
+        return float(np.min(values))
 
 
 class Grid(_Frozen):
@@ -112,14 +118,15 @@ class Validity(_Frozen):
 
     min_det_f: float | None  # over every quadrature and probe point of every snapshot; None: no snapshot yet
     n_inverted: int
-    inverted: list[str] = []  # snapshot files with min_det_f or min_det_f_probe <= 0, grid order
+    inverted: list[str] = []  # snapshot files with min_det_f, min_det_f_probe or min_det_f_bound <= 0, grid order
     first_inverted_mm: list[float | None]  # per grid angle (grid.angles_deg order); None: none inverted
     valid_up_to_mm: float  # the largest grid displacement up to which every angle's snapshots are valid (0: none)
     n_unprobed: int | None = None  # snapshots without min_det_f_probe, judged at the solver's points only; None: format 2
+    n_unbounded: int | None = None  # snapshots without min_det_f_bound, judged at their points only; None: format <= 3
 
 
 class SweepManifest(_Frozen):
-    format_version: Literal[2, 3] = SWEEP_FORMAT
+    format_version: Literal[2, 3, 4] = SWEEP_FORMAT
     scene_name: str
     scene_sha256: str
     scene: dict[str, Any]  # the validated scene (fem_offline.scene.Scene, as JSON)
@@ -167,18 +174,20 @@ def snapshot_record(folder: Path, name: str) -> SnapshotRecord:
             angle_deg=float(z["angle_deg"]), newton_iterations=int(z["newton_iterations"]),
             residual=float(z["residual"]), min_det_f=float(z["min_det_f"]), seconds=float(z["seconds"]),
             mirrored_from=str(z["mirrored_from"]) if "mirrored_from" in z.files else None,
-            min_det_f_probe=float(z["min_det_f_probe"]) if "min_det_f_probe" in z.files else None)
+            min_det_f_probe=float(z["min_det_f_probe"]) if "min_det_f_probe" in z.files else None,
+            min_det_f_bound=float(z["min_det_f_bound"]) if "min_det_f_bound" in z.files else None)
 
 
 def validity_of(grid: Grid, rows: list[SnapshotRecord]) -> Validity:
     """Summarise the snapshots' det F over the grid (the rows on disk; an unfinished sweep's part): a
-    snapshot is inverted when min_det_f or min_det_f_probe is <= 0."""
+    snapshot is inverted when min_det_f, min_det_f_probe or min_det_f_bound is <= 0."""
     bad = [r for r in rows if not r.lowest_det_f > 0]  # NaN counts as inverted
     first = [min((r.displacement_mm for r in bad if r.angle_deg == a), default=None) for a in grid.angles_deg]
     return Validity(min_det_f=min((r.lowest_det_f for r in rows), default=None), n_inverted=len(bad),
                     inverted=[r.file for r in bad], first_inverted_mm=first,
                     valid_up_to_mm=valid_up_to_mm(grid.displacements_mm, [r.displacement_mm for r in bad]),
-                    n_unprobed=sum(r.min_det_f_probe is None for r in rows))
+                    n_unprobed=sum(r.min_det_f_probe is None for r in rows),
+                    n_unbounded=sum(r.min_det_f_bound is None for r in rows))
 
 
 def valid_up_to_mm(displacements_mm, inverted_mm) -> float:

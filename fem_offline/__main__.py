@@ -56,7 +56,7 @@ def _solve(args) -> None:
     from .meshing import load_or_build_mesh
     from .problem import build_problem
     from .solve import solve_case
-    from .validity import probe
+    from .validity import DetFCheck
 
     if args.out.suffix != ".npz":
         raise ValueError(f"--out: must end in .npz, got {args.out}")
@@ -67,17 +67,19 @@ def _solve(args) -> None:
     problem = build_problem(scene, mesh)
     u, stats = solve_case(problem, args.displacement_mm, args.angle_deg, step_mm=args.step_mm)
     stats = measured(problem, u, stats)
-    at_probe = probe(problem).min_jacobian(u.ravel())  # between the solver's points, as a sweep's snapshots
+    between = DetFCheck.of(problem)(u)  # between the solver's points, as a sweep's snapshots
+    at_probe, bound = between["min_det_f_probe"], between["min_det_f_bound"]
     folder.write_case(args.out, u, displacement_mm=args.displacement_mm, angle_deg=args.angle_deg,
-                      record=folder.CaseRecord(**stats.record(), min_det_f_probe=at_probe), reference_positions=mesh.nodes,
+                      record=folder.CaseRecord(**stats.record(), **between), reference_positions=mesh.nodes,
                       scene_sha256=scene.sha256())
     print(
         f"{args.out}: {len(mesh.nodes)} nodes, max |u| {np.linalg.norm(u, axis=1).max():.4f} mm, "
-        f"{stats.iterations} Newton iterations, min det F {stats.min_det_f:.3f} ({at_probe:.3f} at the probe points), "
+        f"{stats.iterations} Newton iterations, min det F {stats.min_det_f:.3f} ({at_probe:.3f} at the probe points, "
+        f"{'at least ' if bound > 0 else ''}{bound:.3f} everywhere), "
         f"{stats.seconds:.1f} s"
     )
-    if not min(stats.min_det_f, at_probe) > 0:
-        print(f"warning: det(I + grad u) {min(stats.min_det_f, at_probe):.3g} <= 0: the solution turns an element inside "
+    if not min(stats.min_det_f, at_probe, bound) > 0:
+        print(f"warning: det(I + grad u) {min(stats.min_det_f, at_probe, bound):.3g} <= 0: the solution turns an element inside "
               "out at this displacement; the case is written but is not a deformation", file=sys.stderr)
 
 
@@ -93,6 +95,9 @@ def _sweep(args) -> int:
     if manifest.validity.n_unprobed:
         print(f"note: {manifest.validity.n_unprobed} snapshots were written before det F was probed between the "
               "quadrature points (sweep format 2); they are judged at the solver's points only", file=sys.stderr)
+    elif manifest.validity.n_unbounded:
+        print(f"note: {manifest.validity.n_unbounded} snapshots were written before det F was bounded everywhere "
+              "(sweep format 3); they are judged at their 15 points per tet only", file=sys.stderr)
     for err in manifest.errors:
         print(f"failed: {err}", file=sys.stderr)
     return 1 if manifest.errors else 0
@@ -104,7 +109,7 @@ def _inversion_warning(manifest) -> str:
     firsts = sorted({d for d in v.first_inverted_mm if d is not None})
     first = f"{firsts[0]:g} mm" if len(firsts) == 1 else f"{firsts[0]:g} to {firsts[-1]:g} mm depending on the angle"
     return (f"warning: {v.n_inverted} of {manifest.n_done} snapshots turn an element inside out (det(I + grad u) <= 0 "
-            f"at a quadrature or probe point, min {v.min_det_f:.3g}), the first at {first}. They are "
+            f"somewhere in a tet, min {v.min_det_f:.3g}), the first at {first}. They are "
             f"written, and listed under `validity` in manifest.json. Every angle is valid up to {v.valid_up_to_mm:g} mm; "
             f"`training fit` fits and serves only that part.")
 

@@ -93,7 +93,7 @@ def _solve(problem: Problem, d_mm: float, angle_deg: float, sweep: str | None):
 def solve_one(scene_json: str, mesh_path: str, out: str, index: int, d_mm: float, angle_deg: float,
               sweep: str | None = None) -> str | None:
     """Solve one case and write it; the error message if it did not converge."""
-    from .sweep import _probe, _problem
+    from .sweep import _check, _problem
 
     problem, t0 = _problem(scene_json, mesh_path), time.perf_counter()
     try:
@@ -101,12 +101,13 @@ def solve_one(scene_json: str, mesh_path: str, out: str, index: int, d_mm: float
     except ConvergenceError as exc:
         return f"case {index} ({d_mm} mm, {angle_deg} deg): {exc}"
     stats = measured(problem, u, replace(stats, seconds=time.perf_counter() - t0))
-    at_probe = _probe(scene_json, mesh_path).min_jacobian(u.ravel())  # between the solver's points, as a sweep's
-    if not min(stats.min_det_f, at_probe) > 0:
-        log.warning("case %d (%g mm, %g deg): det(I + grad u) %.3g at the solver's points, %.3g at the probe points: "
-                    "an element is inside out", index, d_mm, angle_deg, stats.min_det_f, at_probe)
+    between = _check(scene_json, mesh_path)(u)  # between the solver's points, as a sweep's
+    if not min(stats.min_det_f, *between.values()) > 0:
+        log.warning("case %d (%g mm, %g deg): det(I + grad u) %.3g at the solver's points, %.3g at the probe points, "
+                    "%.3g everywhere: an element is inside out", index, d_mm, angle_deg, stats.min_det_f,
+                    between["min_det_f_probe"], between["min_det_f_bound"])
     folder.write_case(case_file(Path(out), index), u, displacement_mm=d_mm, angle_deg=angle_deg,
-                      record=folder.CaseRecord(**stats.record(), min_det_f_probe=at_probe),
+                      record=folder.CaseRecord(**stats.record(), **between),
                       reference_positions=problem.mesh.nodes, scene_sha256=problem.scene.sha256(), started_from=started)
     log.info("case %d: %g mm, %g deg, %d Newton iterations, %.1f s", index, d_mm, angle_deg, stats.iterations, stats.seconds)
     return None

@@ -9,10 +9,11 @@ snapshot is the reflection of its beta > 0 twin (marked `mirrored_from` in the f
 A linear sweep writes every snapshot by superposition, inverted ones included (the manifest's
 `validity` lists those with det(I + grad u) <= 0 and the displacement up to which all angles are valid).
 
-Every snapshot records min det F twice: at the solver's 4 quadrature points per tet (`min_det_f`,
-which Newton keeps > 0 on a nonlinear path) and at the 11 points per tet of the degree-4 rule
-(`min_det_f_probe`, validity.probe), where a P2 field can invert between the solver's points.
-Either <= 0 counts as inverted.
+Every snapshot records min det F three times: at the solver's 4 quadrature points per tet (`min_det_f`,
+which Newton keeps > 0 on a nonlinear path), at the 11 points per tet of the degree-4 rule
+(`min_det_f_probe`, validity.probe), where a P2 field can invert between the solver's points, and
+over every point of every tet (`min_det_f_bound`, validity.det_f_bound: > 0 proves it a deformation,
+<= 0 is det F at a point where it is not). Any <= 0 counts as inverted.
 
 What the probe adds on the default mesh (9,030 tets; `python scripts/bench_fem.py --mesh
 runs/default_contact/mesh.npz --steps 1`, run twice, the 2 cores shared with another FE job): its
@@ -49,7 +50,7 @@ from .mirror import mirror_map, reflect
 from .newton import ConvergenceError, Stats
 from .problem import build_problem
 from .scene import Scene, SceneError, parse_scene
-from .validity import probe
+from .validity import DetFCheck, corners, min_det_f_bound, probe
 
 log = logging.getLogger(__name__)
 
@@ -76,10 +77,10 @@ def grid(scene: Scene) -> list[list[Case]]:
     ]
 
 
-def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats, *, min_det_f_probe: float) -> None:
-    """One snapshot: the solver's record and min det F at the probe points (contracts.sweep)."""
+def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats, *, between: dict[str, float]) -> None:
+    """One snapshot: the solver's record and det F between its points (validity.DetFCheck; contracts.sweep)."""
     folder.write_case(out / case.file, displacement, displacement_mm=case.displacement_mm, angle_deg=case.angle_deg,
-                      record=folder.CaseRecord(**stats.record(), min_det_f_probe=min_det_f_probe))
+                      record=folder.CaseRecord(**stats.record(), **between))
 
 
 def prepare(scene: Scene, out: Path) -> TetMesh:
@@ -109,9 +110,9 @@ def _problem(scene_json: str, mesh_path: str):
 
 
 @lru_cache(maxsize=2)
-def _probe(scene_json: str, mesh_path: str):
-    """The worker's problem at the probe points (validity.probe), built once per process like _problem."""
-    return probe(_problem(scene_json, mesh_path))
+def _check(scene_json: str, mesh_path: str) -> DetFCheck:
+    """The worker's det F check (validity.DetFCheck), built once per process like _problem."""
+    return DetFCheck.of(_problem(scene_json, mesh_path))
 
 
 def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[Case]]:
@@ -135,7 +136,7 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     """Solve the pending cases of one angle, writing each snapshot as soon as it converges."""
     out = Path(out)
     problem = _problem(scene_json, str(out / folder.MESH_FILE))
-    probed = _probe(scene_json, str(out / folder.MESH_FILE))
+    check = _check(scene_json, str(out / folder.MESH_FILE))
     state, todo = _resume_state(out, path)
     if not todo:
         return {"written": 0}
@@ -143,7 +144,7 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     try:
         steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state)
         for case, (_, u, stats) in zip(todo, steps):
-            write_snapshot(out, case, u, stats, min_det_f_probe=probed.min_jacobian(u.ravel()))
+            write_snapshot(out, case, u, stats, between=check(u))
             written += 1
             if os.getppid() != parent:  # the sweep was killed: stop after this (saved) snapshot
                 return {"written": written, "error": "sweep process ended"}
@@ -158,12 +159,13 @@ def _write_linear(scene: Scene, mesh: TetMesh, out: Path, pending: list[Case], p
 
     Each snapshot records its true min det(I + grad u) over the assembled tets' quadrature points
     and over the probe points, one cubic in d per angle for each (linear.min_det_f on the problem and
-    on validity.probe of it). An inverted snapshot (either <= 0) is written all the same: it is the
-    linear model's answer, and the manifest's `validity` lists it.
+    on validity.probe of it), and its bound everywhere (validity.min_det_f_bound). An inverted snapshot
+    (any <= 0) is written all the same: it is the linear model's answer, and the manifest's `validity`
+    lists it.
     """
     t0 = time.perf_counter()
     problem = build_problem(scene, mesh)
-    probed, modes = probe(problem), linear_modes(problem)
+    probed, at_corners, modes = probe(problem), corners(problem), linear_modes(problem)
     det = {}  # case -> (min det F at the solver's points, at the probe points)
     for angle in sorted({c.angle_deg for c in pending}):
         cases = [c for c in pending if c.angle_deg == angle]
@@ -174,7 +176,7 @@ def _write_linear(scene: Scene, mesh: TetMesh, out: Path, pending: list[Case], p
         u = superpose(modes, case.displacement_mm, case.angle_deg)
         at_qp, at_probe = det[case]
         write_snapshot(out, case, u, Stats(iterations=1, seconds=per, min_det_f=float(at_qp)),
-                       min_det_f_probe=float(at_probe))
+                       between={"min_det_f_probe": float(at_probe), "min_det_f_bound": min_det_f_bound(at_corners, u)})
         progress.update(1)
 
 

@@ -15,7 +15,7 @@ from fem_offline.linear import det_f, linear_modes, min_det_f, superpose
 from fem_offline.problem import build_problem
 from fem_offline.scene import SceneError, load_scene, parse_scene
 from fem_offline.sweep import run_sweep
-from fem_offline.validity import probe
+from fem_offline.validity import corners, det_f_bound, min_det_f_bound, probe, resampled
 
 from .cli_helpers import LINEAR, scene_file
 
@@ -72,16 +72,17 @@ def test_each_snapshot_records_its_true_min_det_f_between_the_quadrature_points(
 
 
 def test_the_manifest_lists_the_inverted_and_where_every_angle_is_valid(inverted_sweep):
-    """Inverted at either set of points: 6 mm (between the solver's points only), 8 and 10 mm, at 3 angles."""
+    """Inverted at any set of points: 6 mm (between the solver's points only), 8 and 10 mm, at 3 angles."""
     manifest = folder.read_manifest(inverted_sweep)
     v = manifest.validity
-    inverted = sorted(r.file for r in manifest.snapshots if r.min_det_f <= 0 or r.min_det_f_probe <= 0)
+    inverted = sorted(r.file for r in manifest.snapshots if min(r.min_det_f, r.min_det_f_probe, r.min_det_f_bound) <= 0)
     assert sorted(v.inverted) == inverted and v.n_inverted == len(inverted) == 9
     assert {r.file for r in manifest.snapshots if r.displacement_mm == 6.0} <= set(v.inverted)
     assert v.first_inverted_mm == [6.0, 6.0, 6.0]
-    assert v.valid_up_to_mm == 4.0 and v.n_unprobed == 0
-    at_qp, at_probe = (min(getattr(r, k) for r in manifest.snapshots) for k in ("min_det_f", "min_det_f_probe"))
-    assert v.min_det_f == at_probe < at_qp < -1.0
+    assert v.valid_up_to_mm == 4.0 and v.n_unprobed == 0 and v.n_unbounded == 0
+    at_qp, at_probe, bound = (min(getattr(r, k) for r in manifest.snapshots)
+                              for k in ("min_det_f", "min_det_f_probe", "min_det_f_bound"))
+    assert v.min_det_f == bound < at_probe < at_qp < -1.0
 
 
 def test_the_sweep_cli_warns_with_the_count_and_the_valid_range(tmp_path, inverted_sweep, capsys):
@@ -110,13 +111,14 @@ def test_a_linear_folder_written_before_the_check_is_not_resumed(tmp_path, inver
 
 
 def test_a_format_2_folder_resumes_with_its_unprobed_snapshots_counted(tmp_path, inverted_sweep, capsys):
-    """A folder written before the probe (no min_det_f_probe in its files; format 2) still resumes: the new
-    snapshot is probed, the old ones are judged at the solver's points only, counted and named by the CLI."""
+    """A folder written before the probe (no min_det_f_probe or min_det_f_bound in its files; format 2) still
+    resumes: the new snapshot is probed and bounded, the old ones are judged at the solver's points only, counted
+    and named by the CLI."""
     out = tmp_path / "format2"
     shutil.copytree(inverted_sweep, out)
     for f in (out / folder.SNAPSHOTS).glob("*.npz"):
         with np.load(f) as z:
-            old = {k: z[k] for k in z.files if k != "min_det_f_probe"}
+            old = {k: z[k] for k in z.files if k not in ("min_det_f_probe", "min_det_f_bound")}
         np.savez(f, **old)
     data = json.loads((out / folder.MANIFEST).read_text())
     data["format_version"] = 2
@@ -128,10 +130,90 @@ def test_a_format_2_folder_resumes_with_its_unprobed_snapshots_counted(tmp_path,
     assert main(["sweep", "--scene", str(scene), "--out", str(out)]) == 0
     manifest = folder.read_manifest(out)
     v = manifest.validity
-    assert manifest.format_version == 3 and v.n_unprobed == 14
+    assert manifest.format_version == 4 and v.n_unprobed == 14 and v.n_unbounded == 14
     assert [r.file for r in manifest.snapshots if r.min_det_f_probe is not None] == [folder.snapshot_file(1, 2)]
+    assert [r.file for r in manifest.snapshots if r.min_det_f_bound is not None] == [folder.snapshot_file(1, 2)]
     assert v.first_inverted_mm == [8.0, 6.0, 8.0] and v.valid_up_to_mm == 4.0  # the probed one caught, the others not
     assert "note: 14 snapshots were written before det F was probed" in capsys.readouterr().err
+
+
+def test_a_format_3_folder_resumes_with_its_unbounded_snapshots_counted(tmp_path, inverted_sweep, capsys):
+    """A folder written before the bound (format 3) resumes: the new snapshot is bounded, the old ones are judged at
+    their 15 points per tet, counted and named by the CLI."""
+    out = tmp_path / "format3"
+    shutil.copytree(inverted_sweep, out)
+    for f in (out / folder.SNAPSHOTS).glob("*.npz"):
+        with np.load(f) as z:
+            old = {k: z[k] for k in z.files if k != "min_det_f_bound"}
+        np.savez(f, **old)
+    data = json.loads((out / folder.MANIFEST).read_text())
+    data["format_version"] = 3
+    (out / folder.MANIFEST).write_text(json.dumps(data))
+    (out / folder.snapshot_file(1, 2)).unlink()
+    scene = tmp_path / "lin.toml"
+    scene.write_text((inverted_sweep.parent / "lin.toml").read_text())
+    assert main(["sweep", "--scene", str(scene), "--out", str(out)]) == 0
+    v = folder.read_manifest(out).validity
+    assert v.n_unprobed == 0 and v.n_unbounded == 14 and v.valid_up_to_mm == 4.0
+    assert "note: 14 snapshots were written before det F was bounded everywhere" in capsys.readouterr().err
+
+
+def test_each_snapshot_records_a_bound_of_det_f_everywhere(inverted_sweep, sweep_problem):
+    """min_det_f_bound holds at 60 random points of every tet (never above the lowest) and has the sign of det F:
+    > 0 up to 4 mm (a lower bound within 0.2 of the lowest sampled value), <= 0 from 6 mm on, where it is det F at
+    a tet's corner, below every one of the 15 points the solver and the probe sample."""
+    rng = np.random.default_rng(7)
+    lam = rng.dirichlet(np.ones(4), 60).T  # barycentric coordinates (4, 60)
+    dense, at_corners = resampled(sweep_problem, quadrature=(lam[1:], np.full(60, 1 / 360))), corners(sweep_problem)
+    manifest = folder.read_manifest(inverted_sweep)
+    for row in manifest.snapshots:
+        with np.load(inverted_sweep / row.file) as z:
+            u = z["displacement"].ravel()
+        assert row.min_det_f_bound == pytest.approx(min_det_f_bound(at_corners, u), rel=1e-12)
+        sampled = dense.min_jacobian(u)
+        assert row.min_det_f_bound <= sampled + 1e-12, row.file
+        if row.displacement_mm <= 4.0:
+            assert 0 < row.min_det_f_bound and sampled - row.min_det_f_bound < 0.2, row.file
+        else:
+            assert row.min_det_f_bound == pytest.approx(at_corners.min_jacobian(u), rel=1e-12)
+            assert row.min_det_f_bound < row.min_det_f_probe and row.min_det_f_bound < 0, row.file
+
+
+def _corner_fields(*blocks):
+    """F (1, 4, 3, 3) at a simplex's corners: the given 3 x 3 matrices, then the identity."""
+    F = [np.asarray(b, dtype=np.float64) for b in blocks] + [np.eye(3)] * (4 - len(blocks))
+    return np.stack(F)[None]
+
+
+def _dense_min(F, n=200_000, seed=0):
+    """min det F at n random points of the simplex, F affine (1, 4, 3, 3) at its corners."""
+    lam = np.random.default_rng(seed).dirichlet(np.ones(4), n)
+    return np.linalg.det(np.einsum("ni,iab->nab", lam, F[0])).min()
+
+
+def test_the_bound_of_an_affine_field_is_its_det_f():
+    """F constant over the tet: every Bernstein coefficient is det F, so the bound is exact."""
+    A = np.array([[1.1, 0.2, -0.1], [0.05, 0.8, 0.3], [0.0, -0.2, 0.95]])
+    assert det_f_bound(_corner_fields(A, A, A, A)) == pytest.approx(np.linalg.det(A), rel=1e-13)
+
+
+def test_the_bound_subdivides_until_it_proves_det_f_positive():
+    """Rotations by +-80 deg about z at two corners: det F is 1 at every corner and cos^2(80 deg) = 0.030 at
+    the edge's midpoint, the least; its least Bernstein coefficient is -0.29. Subdivided, the bound is
+    > 0 and below the true minimum."""
+    c, s = np.cos(np.radians(80)), np.sin(np.radians(80))
+    F = _corner_fields([[c, -s, 0], [s, c, 0], [0, 0, 1]], [[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    bound = det_f_bound(F)
+    assert 0 < bound <= c**2 + 1e-15 and bound <= _dense_min(F)
+    assert bound > 0.5 * c**2
+
+
+def test_the_bound_finds_an_inversion_inside_a_tet_whose_corners_are_positive():
+    """diag(1, 1, 1) and diag(-1.2, -1, 1) at two corners: det F is 1 and 1.2 there, and at 0.52 / 0.48 of the
+    way (-0.056 x 0.04 x 1) below 0. No corner sees it; the bound is <= 0."""
+    F = _corner_fields(np.eye(3), np.diag([-1.2, -1.0, 1.0]))
+    assert np.linalg.det(F[0]).min() > 0 and _dense_min(F) < 0
+    assert det_f_bound(F) <= 0
 
 
 def test_det_f_is_the_cubic_in_d_that_superposition_gives(tiny_linear_problem):
