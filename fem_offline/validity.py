@@ -112,9 +112,11 @@ def det_f_bound(F: np.ndarray, *, max_depth: int = 8, max_pieces: int = 2_000_00
     > 0: a lower bound of det F everywhere (the least Bernstein coefficient, after subdividing the tets
     whose coefficients were not all > 0 until they were). <= 0: det F at a corner of a piece, a point
     where the element is inside out. Pieces still undecided after `max_depth` red refinements (or past
-    `max_pieces`) give their least coefficient, <= 0: judged inverted, as their true minimum is within
-    that of 0."""
+    `max_pieces`) give their least coefficient, <= 0 (their true minimum lies between it and their corners'
+    values, > 0): judged inverted, to be safe. NaN where F has a non-finite entry."""
     F = np.asarray(F, dtype=np.float64)
+    if not np.isfinite(F).all():
+        return float("nan")  # not a field: inverted, as contracts.sweep counts NaN
     lower = np.inf
     for depth in range(max_depth + 1):
         at_corners = _det3(F).min(initial=np.inf)

@@ -197,6 +197,12 @@ def test_the_bound_of_an_affine_field_is_its_det_f():
     assert det_f_bound(_corner_fields(A, A, A, A)) == pytest.approx(np.linalg.det(A), rel=1e-13)
 
 
+def test_the_bound_of_a_field_with_nan_is_nan():
+    """A NaN in F (a diverged field) is not a deformation: NaN, which contracts.sweep counts as inverted."""
+    F = _corner_fields(np.eye(3), np.full((3, 3), np.nan))
+    assert np.isnan(det_f_bound(np.concatenate([_corner_fields(), F])))
+
+
 def test_the_bound_subdivides_until_it_proves_det_f_positive():
     """Rotations by +-80 deg about z at two corners: det F is 1 at every corner and cos^2(80 deg) = 0.030 at
     the edge's midpoint, the least; its least Bernstein coefficient is -0.29. Subdivided, the bound is
