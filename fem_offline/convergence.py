@@ -113,9 +113,9 @@ def field_gci(coarse: np.ndarray, medium: np.ndarray, fine: np.ndarray, ratio: f
 
 
 def scaled_scene(scene: Scene, scale: float) -> Scene:
-    """The scene with every mesh size (max, prostate, guide) multiplied by `scale`."""
+    """The scene with every mesh size (max, prostate, guide, and surface near the tip if set) multiplied by `scale`."""
     m = scene.mesh
-    sizes = {"max_mm": m.max_mm * scale, "prostate_mm": m.prostate_mm * scale, "guide_mm": m.guide_mm * scale}
+    sizes = {k: v * scale for k, v in m.model_dump().items() if v is not None}
     return scene.model_copy(update={"mesh": m.model_copy(update=sizes)})
 
 

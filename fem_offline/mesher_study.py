@@ -114,7 +114,7 @@ def phantom_markers(phantom_scene: Scene) -> tuple[np.ndarray, np.ndarray, np.nd
 
     mesh = mesh_for_scene(phantom_scene)
     points = mesh.nodes[mesh.node_sets["markers"]]
-    sizes = {k: v / REFINEMENT for k, v in phantom_scene.mesh.model_dump().items()}
+    sizes = {k: v / REFINEMENT for k, v in phantom_scene.mesh.model_dump().items() if v is not None}
     finer_scene = phantom_scene.model_copy(update={"mesh": phantom_scene.mesh.model_copy(update=sizes)})
     finer = mesh_for_scene(finer_scene)
     return (points, linear_markers(glued(phantom_scene), mesh, points, **PUSH),

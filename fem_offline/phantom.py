@@ -132,8 +132,26 @@ def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
         field.setNumber(tip, f"{axis}Center", value)
     field.setNumber(tip, "VIn", size.guide_mm)
     field.setNumber(tip, "VOut", size.max_mm)
+    fields = [near, tip]
+    if size.surface_near_tip_mm is not None:  # the prostate's surface near the tip: a fine shell, cut to a ball
+        shell = field.add("Threshold")
+        field.setNumber(shell, "InField", dist)
+        field.setNumber(shell, "SizeMin", size.surface_near_tip_mm)
+        field.setNumber(shell, "SizeMax", size.max_mm)
+        field.setNumber(shell, "DistMin", 0.0)
+        field.setNumber(shell, "DistMax", 5.0)
+        zone = field.add("Ball")  # max_mm outside: Max(shell, zone) is the shell inside the ball only
+        field.setNumber(zone, "Radius", 2.0 * scene.guide.patch_radius_mm)
+        field.setNumber(zone, "Thickness", scene.guide.patch_radius_mm)
+        for axis, value in zip("XYZ", scene.guide.tip_mm):
+            field.setNumber(zone, f"{axis}Center", value)
+        field.setNumber(zone, "VIn", size.surface_near_tip_mm)
+        field.setNumber(zone, "VOut", size.max_mm)
+        cut = field.add("Max")
+        field.setNumbers(cut, "FieldsList", [shell, zone])
+        fields.append(cut)
     both = field.add("Min")
-    field.setNumbers(both, "FieldsList", [near, tip])
+    field.setNumbers(both, "FieldsList", fields)
     field.setAsBackgroundMesh(both)
     for opt in ("MeshSizeFromPoints", "MeshSizeFromCurvature", "MeshSizeExtendFromBoundary"):
         gmsh.option.setNumber(f"Mesh.{opt}", 0)

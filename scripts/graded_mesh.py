@@ -3,8 +3,9 @@
     python scripts/graded_mesh.py --sizes 15.6:4:2 15.6:3.08:1.54 [--study runs/convergence_contact_taylor_hood] \
         [--scales 1.3 1 0.769 0.5917] [--out runs/graded] [--json docs/graded_mesh.json]
 
-Each --sizes MAX:PROSTATE:GUIDE sets the scene's [mesh] sizes (mm): far from everything, at the prostate
-(growing to MAX over 25 mm) and around the guide tip. Unlike the study's levels, which scale all three
+Each --sizes MAX:PROSTATE:GUIDE[:SURFACE] sets the scene's [mesh] sizes (mm): far from everything, at the
+prostate (growing to MAX over 25 mm), around the guide tip, and on the prostate's surface near the tip
+(mesh.surface_near_tip_mm; left out: none). Unlike the study's levels, which scale all three
 together, these refine only near the prostate or the tip. Each mesh solves the hard cases (resumably, every
 load step checkpointed under --out) with the study's physics (default.toml, the tip in contact, the
 Taylor-Hood element, 0.5 mm load steps), and is judged as the study judges a level coarser than its
@@ -33,14 +34,16 @@ from fem_offline.meshing import mesh_for_scene
 from fem_offline.problem import build_problem
 
 
-def sizes_arg(text: str) -> tuple[float, float, float]:
+def sizes_arg(text: str) -> tuple[float, ...]:
     try:
-        mx, prostate, guide = (float(x) for x in text.split(":"))
+        sizes = tuple(float(x) for x in text.split(":"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--sizes: {text!r} is not MAX:PROSTATE:GUIDE in mm (e.g. 15.6:4:2)") from None
-    if min(mx, prostate, guide) <= 0.05 or max(prostate, guide) > mx:
-        raise argparse.ArgumentTypeError(f"--sizes: {text!r} needs 0.05 < PROSTATE, GUIDE <= MAX")
-    return mx, prostate, guide
+        sizes = ()
+    if len(sizes) not in (3, 4):
+        raise argparse.ArgumentTypeError(f"--sizes: {text!r} is not MAX:PROSTATE:GUIDE[:SURFACE] in mm (e.g. 15.6:4:2)")
+    if min(sizes) <= 0.05 or max(sizes[1:]) > sizes[0]:
+        raise argparse.ArgumentTypeError(f"--sizes: {text!r} needs 0.05 < PROSTATE, GUIDE, SURFACE <= MAX")
+    return sizes
 
 
 def tag(sizes) -> str:
@@ -50,9 +53,9 @@ def tag(sizes) -> str:
 
 def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> dict:
     """Mesh with `sizes`, solve `cases`, and bound each answer's distance to the study's converged estimate."""
-    mx, prostate, guide = sizes
+    mx, prostate, guide, surface = (*sizes, None) if len(sizes) == 3 else sizes
     scene = scene.model_copy(update={"mesh": scene.mesh.model_copy(
-        update={"max_mm": mx, "prostate_mm": prostate, "guide_mm": guide})})
+        update={"max_mm": mx, "prostate_mm": prostate, "guide_mm": guide, "surface_near_tip_mm": surface})})
     folder = out / tag(sizes)
     folder.mkdir(parents=True, exist_ok=True)
     if not (folder / "mesh.npz").exists():  # gmsh is not bit-reproducible: keep the mesh
@@ -64,7 +67,8 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
     surface = np.asarray(mesh.node_sets["prostate_surface"])
     near_own = np.linalg.norm(mesh.nodes[surface] - tip, axis=1) < NEAR_TIP_MM
     problem = build_problem(scene, mesh)
-    row = {"sizes_mm": {"max": mx, "prostate": prostate, "guide": guide}, "n_tets": len(mesh.tets),
+    named = {"max": mx, "prostate": prostate, "guide": guide} | ({"surface_near_tip": surface} if surface else {})
+    row = {"sizes_mm": named, "n_tets": len(mesh.tets),
            "n_nodes": len(mesh.nodes), "cases": {}}
     for d, beta in cases:
         logging.info("sizes %s (%d tets): %g mm, %g deg", tag(sizes), len(mesh.tets), d, beta)
@@ -89,7 +93,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", type=sizes_arg, nargs="+", required=True, metavar="MAX:PROSTATE:GUIDE")
+    ap.add_argument("--sizes", type=sizes_arg, nargs="+", required=True, metavar="MAX:PROSTATE:GUIDE[:SURFACE]")
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
     ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"))
     ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],

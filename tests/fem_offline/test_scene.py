@@ -89,6 +89,16 @@ def test_extends_errors_name_the_file(tmp_path):
         load_scene(tmp_path / "d.toml")
 
 
+def test_surface_near_tip_is_refused_on_a_label_map_scene(tmp_path):
+    """Only the phantom's gmsh mesher grades by it: a label-map scene that sets it gets an error naming it."""
+    (tmp_path / "p.toml").write_text(
+        f'extends = "{SCENES / "patient.toml"}"\nname = "p"\n[label_map]\npath = "labels.nii.gz"\n'
+        "[label_map.labels]\nprostate = 1\nrectal_wall = 2\n[guide]\ntip_mm = [1.0, -14.0, 35.0]\n"
+        "[mesh]\nsurface_near_tip_mm = 1.2\n")
+    with pytest.raises(SceneError, match="mesh.surface_near_tip_mm: the label-map meshers do not grade by it"):
+        load_scene(tmp_path / "p.toml")
+
+
 def test_patient_base_scene_gives_a_label_map_scene_the_default_physics_and_a_4_degree_sweep(tmp_path):
     """What the README's short patient scene loads to: default materials, effects and mesh sizes, no
     phantom, and the patient sweep (6 angles x 20 displacements in 0.5 mm load steps: 6 paths)."""
