@@ -134,8 +134,11 @@ def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
     field.setNumber(tip, "VOut", size.max_mm)
     fields = [near, tip]
     if size.surface_near_tip_mm is not None:  # the prostate's surface near the tip: a fine shell, cut to a ball
+        fine = field.add("Distance")  # sampled finely enough for sub-mm sizes (the default 20 per direction is not)
+        field.setNumbers(fine, "SurfacesList", prostate_faces)
+        field.setNumber(fine, "Sampling", 200)
         shell = field.add("Threshold")
-        field.setNumber(shell, "InField", dist)
+        field.setNumber(shell, "InField", fine)
         field.setNumber(shell, "SizeMin", size.surface_near_tip_mm)
         field.setNumber(shell, "SizeMax", size.max_mm)
         field.setNumber(shell, "DistMin", 0.0)

@@ -53,9 +53,9 @@ def tag(sizes) -> str:
 
 def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> dict:
     """Mesh with `sizes`, solve `cases`, and bound each answer's distance to the study's converged estimate."""
-    mx, prostate, guide, surface = (*sizes, None) if len(sizes) == 3 else sizes
+    mx, prostate, guide, shell = (*sizes, None) if len(sizes) == 3 else sizes
     scene = scene.model_copy(update={"mesh": scene.mesh.model_copy(
-        update={"max_mm": mx, "prostate_mm": prostate, "guide_mm": guide, "surface_near_tip_mm": surface})})
+        update={"max_mm": mx, "prostate_mm": prostate, "guide_mm": guide, "surface_near_tip_mm": shell})})
     folder = out / tag(sizes)
     folder.mkdir(parents=True, exist_ok=True)
     if not (folder / "mesh.npz").exists():  # gmsh is not bit-reproducible: keep the mesh
@@ -67,7 +67,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
     surface = np.asarray(mesh.node_sets["prostate_surface"])
     near_own = np.linalg.norm(mesh.nodes[surface] - tip, axis=1) < NEAR_TIP_MM
     problem = build_problem(scene, mesh)
-    named = {"max": mx, "prostate": prostate, "guide": guide} | ({"surface_near_tip": surface} if surface else {})
+    named = {"max": mx, "prostate": prostate, "guide": guide} | ({"surface_near_tip": shell} if shell else {})
     row = {"sizes_mm": named, "n_tets": len(mesh.tets),
            "n_nodes": len(mesh.nodes), "cases": {}}
     for d, beta in cases:
