@@ -94,6 +94,10 @@ def build(scene_path: str | Path, out: str | Path, *, work: str | Path | None = 
     say(f"[3/3] fit into {out}")
     test_cases = held_out_cases(displacements, manifest.grid.angles_deg)
     n_train = sum(r.displacement_mm in displacements for r in manifest.snapshots) - len(test_cases)
+    if n_train < 2:
+        raise RuntimeError(f"sweep: {n_train} snapshot(s) up to {displacements[-1]:g} mm are left to train on once the "
+                           f"{len(test_cases)} Table 3 cases are held out; a fit needs 2: sweep finer steps below the "
+                           "inversion (sweep.displacement_step_mm) or more angles")
     fit_options = FitOptions(rank=min(options.rank, max(n_train - 1, 1)), width=options.width, seed=options.seed,
                              test_cases=test_cases)
     estimate = options.fe_estimate if options.fe_estimate is not None and Path(options.fe_estimate).exists() else None

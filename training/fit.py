@@ -276,6 +276,10 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     if fe is None and fe_estimate is not None:
         fe = fe_label_map_estimate(fe_estimate, sweep.manifest)
     test, inputs, rows = training_set(data, test_cases)
+    if len(rows) <= options.rank:
+        where = f" up to {cut.valid_up_to_mm:g} mm, where the sweep stops being valid," if cut is not None else ""
+        raise ValueError(f"--rank: {len(rows)} snapshots{where} are left to train on once {int(test.sum())} are held "
+                         f"out; {options.rank} modes need at least {options.rank + 1}")
     with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
         surrogate = fit_surrogate(inputs, rows, options, progress=bar.update)
     onnx_bytes = surrogate.onnx_bytes()

@@ -119,7 +119,7 @@ def _cli(*args):
     ("args", "message"),
     [
         (["--rank", "0"], "--rank must be at least 1"),
-        (["--rank", "500", "--test-case", "5/-2"], "--rank: must be between 1 and"),
+        (["--rank", "500", "--test-case", "5/-2"], "are left to train on once 1 are held out; 500 modes need at least 501"),
         (["--test-case", "7.75"], "--test-case: expected DISPLACEMENT_MM/ANGLE_DEG"),
         (["--test-case", "7.7/-5"], "--test-case 7.7/-5.0: not a snapshot of this sweep"),
     ],
