@@ -13,7 +13,9 @@ three: per point, |u_mesh - u_fine| + GCI_fine (fem_offline.convergence.converge
 study's probe points (its 8 markers, 3 interior points and the 886 prostate-surface nodes of its scale-1
 mesh, so that the surface figure includes interpolation between the graded mesh's own nodes; and all its
 nodes, as the study's "every node") and at the graded mesh's own prostate-surface nodes and every node.
-Prints one line per mesh and case.
+Each bound is the mesh's gap to the fine level plus the fine level's own band, so no mesh gets under the
+band: the JSON gives the band's maximum per zone and, at the surface point away from the tip that bounds
+the rest, the two parts. Prints one line per mesh and case.
 """
 
 from __future__ import annotations
@@ -75,16 +77,26 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
         u, seconds = solve_resumable(problem, d, beta, folder / f"path_{d:g}_{beta:g}.npz")
         used, u1, band, order = converged_estimate(study, scales, (d, beta), mesh.nodes)
         e_own = np.linalg.norm(u - u1, axis=1) + band
-        at = {}
+        at, bands = {}, {}
         for k in ("markers", "interior", "prostate_surface", "nodes"):
-            _, p1, pband, _ = converged_estimate(study, scales, (d, beta), probes[k], order)
-            at[k] = np.linalg.norm(at_points(mesh, u, probes[k]) - p1, axis=1) + pband
+            _, p1, bands[k], _ = converged_estimate(study, scales, (d, beta), probes[k], order)
+            at[k] = np.linalg.norm(at_points(mesh, u, probes[k]) - p1, axis=1) + bands[k]
+        surface_band = bands["prostate_surface"]
+        rest = np.flatnonzero(~near_probe)
+        worst = rest[np.argmax(at["prostate_surface"][rest])]
         row["cases"][f"{d:g} mm, {beta:g} deg"] = {
             "seconds": seconds, "levels": used,
             "markers_mm": float(at["markers"].max()), "interior_mm": float(at["interior"].max()),
             "surface_probes_mm": {"max": float(at["prostate_surface"].max()),
                                   "near_tip_max": float(at["prostate_surface"][near_probe].max()),
                                   "rest_max": float(at["prostate_surface"][~near_probe].max())},
+            # The bound is this mesh's gap to the fine level plus the fine level's own band; no mesh gets under the band
+            "surface_probes_band_mm": {"near_tip_max": float(surface_band[near_probe].max()),
+                                       "rest_max": float(surface_band[~near_probe].max())},
+            "surface_rest_worst": {"band_mm": float(surface_band[worst]),
+                                   "gap_mm": float(at["prostate_surface"][worst] - surface_band[worst]),
+                                   "to_tip_mm": float(np.linalg.norm(probes["prostate_surface"][worst] - tip)),
+                                   "point_mm": probes["prostate_surface"][worst].round(2).tolist()},
             "surface_own_nodes_mm": {"max": float(e_own[surface].max()), "near_tip_max": float(e_own[surface[near_own]].max()),
                                      "rest_max": float(e_own[surface[~near_own]].max())},
             "all_nodes_mm": float(e_own.max()), "all_nodes_probes_mm": float(at["nodes"].max())}
@@ -123,7 +135,8 @@ def main() -> int:
             print(f"sizes {tag(sizes)} ({row['n_tets']} tets), {case} ({r['seconds'] / 60:.1f} min): vs converged, "
                   f"markers {r['markers_mm']:.3f} mm, interior {r['interior_mm']:.3f}, surface at the study's points "
                   f"{r['surface_probes_mm']['max']:.3f} (near tip {r['surface_probes_mm']['near_tip_max']:.3f}, rest "
-                  f"{r['surface_probes_mm']['rest_max']:.3f}), at its own nodes {r['surface_own_nodes_mm']['max']:.3f}, "
+                  f"{r['surface_probes_mm']['rest_max']:.3f}: gap {r['surface_rest_worst']['gap_mm']:.3f} + the estimate's band "
+                  f"{r['surface_rest_worst']['band_mm']:.3f} at {r['surface_rest_worst']['to_tip_mm']:.1f} mm from the tip), at its own nodes {r['surface_own_nodes_mm']['max']:.3f}, "
                   f"every node {r['all_nodes_mm']:.3f}", flush=True)
     result = {"kind": "graded_mesh", "study": str(args.study), "scales": args.scales,
               "command": "python scripts/graded_mesh.py --sizes " + " ".join(tag(s).replace("_", ":") for s in args.sizes),
