@@ -377,9 +377,12 @@ def main() -> int:
     levels = level_errors(json.loads(args.convergence.read_text()))
     if args.graded:
         try:
-            levels = sorted(levels + graded_levels(json.loads(args.graded.read_text())), key=lambda lv: lv.n_tets)
+            skipped: list[str] = []
+            levels = sorted(levels + graded_levels(json.loads(args.graded.read_text()), skipped), key=lambda lv: lv.n_tets)
         except (ValueError, KeyError) as exc:
             raise SystemExit(f"--graded: {args.graded}: {exc}") from None
+        if skipped:
+            print(f"--graded: left out (judged on fewer cases than the others): {', '.join(skipped)}", flush=True)
     own = (len(sweep.mesh.tets), len(sweep.mesh.nodes))
     sweep_level = next((lv for lv in levels if (lv.n_tets, lv.n_nodes) == own), None)
     if sweep_level is None:

@@ -81,21 +81,29 @@ def _full_push_seconds(level: dict) -> float:
     return float(np.mean([level["cases"][c]["seconds"] for c, d in push.items() if d == d_max]))
 
 
-def graded_levels(data: dict) -> list[LevelFe]:
+def graded_levels(data: dict, skipped: list[str] | None = None) -> list[LevelFe]:
     """e_FE per region for each mesh of scripts/graded_mesh.py's JSON, the bound `level_errors` gives a study
     level: max over the cases of |u - u_finest| + the finest's band at the study's probe points (its markers, its
-    scale-1 mesh's surface nodes and every node of it)."""
+    scale-1 mesh's surface nodes and every node of it).
+
+    A mesh judged on fewer cases than the file's others is left out (its max would cover less), its tag
+    appended to `skipped`."""
     if data.get("kind") != "graded_mesh":
         raise ValueError("not scripts/graded_mesh.py's JSON (kind is not 'graded_mesh')")
+    every = set().union(*(m["cases"] for m in data["meshes"]))
     out = []
     for m in data["meshes"]:
+        if set(m["cases"]) != every:
+            if skipped is not None:
+                skipped.append(m["tag"])
+            continue
         rows = m["cases"].values()
         fe = {"markers": max(r["markers_mm"] for r in rows),
               "prostate_surface": max(r["surface_probes_mm"]["max"] for r in rows),
               "all_nodes": max(r["all_nodes_probes_mm"] for r in rows)}
         s = m["sizes_mm"]
         out.append(LevelFe(None, int(m["n_tets"]), int(m["n_nodes"]), fe, _full_push_seconds(m),
-                           name=f"graded {s['max']:g}:{s['prostate']:g}:{s['guide']:g} mm"))
+                           name=f"graded {':'.join(f'{v:g}' for v in s.values())} mm"))
     return out
 
 

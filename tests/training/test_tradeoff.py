@@ -1,5 +1,7 @@
 """End-to-end error of a configuration, its Pareto front and build-cost arithmetic, on hand-made inputs."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -150,3 +152,19 @@ def test_a_graded_mesh_is_a_level_with_every_region_at_the_studys_points():
     assert end_to_end({"markers": 0.001, "prostate_surface": 0.002, "all_nodes": 0.01}, lv.fe_mm)["markers"] == pytest.approx(0.091)
     with pytest.raises(ValueError, match="graded_mesh"):
         graded_levels({"kind": "model_vs_converged"})
+
+
+def test_a_graded_mesh_judged_on_fewer_cases_is_left_out_and_named():
+    """A mesh judged on one hard case only would report a max over less: it is no level; a shell size is named."""
+    from training.tradeoff import graded_levels
+
+    data = _graded()
+    shell = json.loads(json.dumps(data["meshes"][0]))
+    shell.update(tag="15.6_4_2_1.2", n_tets=8852, sizes_mm={"max": 15.6, "prostate": 4.0, "guide": 2.0, "surface_near_tip": 1.2})
+    partial = json.loads(json.dumps(shell))
+    partial.update(tag="15.6_4_2_0.9", cases={"10 mm, 10 deg": shell["cases"]["10 mm, 10 deg"]})
+    data["meshes"] += [shell, partial]
+    skipped = []
+    levels = graded_levels(data, skipped)
+    assert [lv.label for lv in levels] == ["graded 15.6:4:2 mm", "graded 15.6:4:2:1.2 mm"]
+    assert skipped == ["15.6_4_2_0.9"]
