@@ -80,8 +80,8 @@ bench-service: $(STAMP)
 # convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default_graded (the
 # default's sweep); the tiny-mesh check builds its two sweeps once.
 # The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
-CONVERGENCE ?= docs/convergence_contact_taylor_hood_4levels.json
-GRADED ?= docs/graded_mesh.json
+CONVERGENCE ?= docs/convergence_contact_taylor_hood_5levels.json
+GRADED ?= docs/graded_mesh_5levels.json
 tradeoff: $(STAMP)
 	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
 	    --graded $(GRADED) --mesh-check runs/tiny_mesh_check
@@ -94,24 +94,25 @@ convergence: $(STAMP)
 	$(PY) scripts/contact_vs_glued.py
 
 # The default model's FE error against the Taylor-Hood element's converged estimate (docs/fe_error_default.json):
-# the study on four contact levels (resumable; the analysis takes the three finest), the model against it node by
-# node (each case on the three finest levels that solved it), then the stamp in models/default (manifest,
-# report.md; the ONNX graph and the mesh stay as they are). 20-58 min for the three coarser levels, 85 min for
-# the fourth (README, Grid convergence, "A fourth level"); stop and rerun to resume.
-TH_SCALES ?= 1.3 1 0.769 0.5917
+# the study on five contact levels (resumable; each case is judged on the three finest levels that solved it), the
+# model against it node by node, then the stamp in models/default (manifest, report.md; the ONNX graph and the mesh
+# stay as they are). 20-58 min for the three coarser levels, 85 min for the fourth, 79-141 min a case for the
+# fifth (README, Grid convergence, "A fourth level" and "A fifth level"); stop and rerun to resume.
+TH_SCALES ?= 1.3 1 0.769 0.5917 0.4552
 TH_CASES ?= 10:0 10:10 5:5
+TH_NAME ?= convergence_contact_taylor_hood_5levels
 fe-error-taylor-hood: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(TH_SCALES) \
-	    --volumetric taylor_hood --cases $(TH_CASES) --name convergence_contact_taylor_hood_4levels
+	    --volumetric taylor_hood --cases $(TH_CASES) --name $(TH_NAME)
 	$(PY) scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
 	    --scales $(TH_SCALES) --cases $(TH_CASES) --json docs/fe_error_default.json
 	$(PY) -m training restamp --model models/default --fe-error docs/fe_error_default.json
 
-# Meshes graded where the error is (docs/graded_mesh.json): each solves the hard cases (6-9 min here) and is judged
+# Meshes graded where the error is ($(GRADED)): each solves the hard cases (6-9 min here) and is judged
 # against the Taylor-Hood study's converged estimate (its folder from fe-error-taylor-hood); resumable.
 GRADED_SIZES ?= 15.600000000000001:4:2 15.600000000000001:3.08:2.6 15.600000000000001:5.2:1.54
 graded-mesh: $(STAMP)
-	MKL_NUM_THREADS=2 $(PY) scripts/graded_mesh.py --sizes $(GRADED_SIZES) --scales $(TH_SCALES)
+	MKL_NUM_THREADS=2 $(PY) scripts/graded_mesh.py --sizes $(GRADED_SIZES) --scales $(TH_SCALES) --json $(GRADED)
 
 # Up to which displacement the linear model is a deformation (docs/linear_validity.*), on the default model's
 # scene; 2 min. With its nonlinear sweep in $(RUNS) (default-model's) it compares with it on the same mesh and
