@@ -90,7 +90,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
             "surface_probes_mm": {"max": float(at["prostate_surface"].max()),
                                   "near_tip_max": float(at["prostate_surface"][near_probe].max()),
                                   "rest_max": float(at["prostate_surface"][~near_probe].max())},
-            # The bound is this mesh's gap to the fine level plus the fine level's own band; no mesh gets under the band
+            # the bound is this mesh's gap to the fine level plus the fine level's own band: no mesh gets under the band
             "surface_probes_band_mm": {"near_tip_max": float(surface_band[near_probe].max()),
                                        "rest_max": float(surface_band[~near_probe].max())},
             "surface_rest_worst": {"band_mm": float(surface_band[worst]),
@@ -132,12 +132,13 @@ def main() -> int:
         row = judge(scene, sizes, args.study, args.scales, cases, args.out)
         meshes[tag(sizes)] = {"tag": tag(sizes), **row}
         for case, r in row["cases"].items():
+            worst = r["surface_rest_worst"]
             print(f"sizes {tag(sizes)} ({row['n_tets']} tets), {case} ({r['seconds'] / 60:.1f} min): vs converged, "
                   f"markers {r['markers_mm']:.3f} mm, interior {r['interior_mm']:.3f}, surface at the study's points "
                   f"{r['surface_probes_mm']['max']:.3f} (near tip {r['surface_probes_mm']['near_tip_max']:.3f}, rest "
-                  f"{r['surface_probes_mm']['rest_max']:.3f}: gap {r['surface_rest_worst']['gap_mm']:.3f} + the estimate's band "
-                  f"{r['surface_rest_worst']['band_mm']:.3f} at {r['surface_rest_worst']['to_tip_mm']:.1f} mm from the tip), at its own nodes {r['surface_own_nodes_mm']['max']:.3f}, "
-                  f"every node {r['all_nodes_mm']:.3f}", flush=True)
+                  f"{r['surface_probes_mm']['rest_max']:.3f}: gap {worst['gap_mm']:.3f} + the estimate's band "
+                  f"{worst['band_mm']:.3f} at {worst['to_tip_mm']:.1f} mm from the tip), at its own nodes "
+                  f"{r['surface_own_nodes_mm']['max']:.3f}, every node {r['all_nodes_mm']:.3f}", flush=True)
     result = {"kind": "graded_mesh", "study": str(args.study), "scales": args.scales,
               "command": "python scripts/graded_mesh.py --sizes " + " ".join(tag(s).replace("_", ":") for s in args.sizes),
               "meshes": sorted(meshes.values(), key=lambda m: m["n_tets"])}
