@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -51,6 +52,13 @@ def sizes_arg(text: str) -> tuple[float, ...]:
 def tag(sizes) -> str:
     """The sizes, exact (15.600000000000001 = 12 x 1.3 meshes differently from 15.6), as a folder name."""
     return "_".join(repr(float(s)).removesuffix(".0") for s in sizes)
+
+
+def command(sizes, args, cases) -> str:
+    """The command that judges one mesh as this run did (the JSON merges meshes of several runs)."""
+    return shlex.join(["python", "scripts/graded_mesh.py", "--sizes", tag(sizes).replace("_", ":"),
+                       "--scene", str(args.scene), "--study", str(args.study), "--scales", *(f"{s:g}" for s in args.scales),
+                       "--cases", *(f"{d:g}:{b:g}" for d, b in cases), "--json", str(args.json)])
 
 
 def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> dict:
@@ -103,7 +111,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
     return row
 
 
-def main() -> int:
+def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=sizes_arg, nargs="+", required=True, metavar="MAX:PROSTATE:GUIDE[:SURFACE]")
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
@@ -113,7 +121,11 @@ def main() -> int:
     ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG", help="default: the hard cases")
     ap.add_argument("--out", type=Path, default=Path("runs/graded"))
     ap.add_argument("--json", type=Path, default=Path("docs/graded_mesh.json"))
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> int:
+    args = parser().parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
     try:
@@ -130,7 +142,7 @@ def main() -> int:
     meshes = {m["tag"]: m for m in previous.get("meshes", [])}
     for sizes in args.sizes:
         row = judge(scene, sizes, args.study, args.scales, cases, args.out)
-        meshes[tag(sizes)] = {"tag": tag(sizes), **row}
+        meshes[tag(sizes)] = {"tag": tag(sizes), "command": command(sizes, args, cases), **row}
         for case, r in row["cases"].items():
             worst = r["surface_rest_worst"]
             print(f"sizes {tag(sizes)} ({row['n_tets']} tets), {case} ({r['seconds'] / 60:.1f} min): vs converged, "
@@ -139,9 +151,11 @@ def main() -> int:
                   f"{r['surface_probes_mm']['rest_max']:.3f}: gap {worst['gap_mm']:.3f} + the estimate's band "
                   f"{worst['band_mm']:.3f} at {worst['to_tip_mm']:.1f} mm from the tip), at its own nodes "
                   f"{r['surface_own_nodes_mm']['max']:.3f}, every node {r['all_nodes_mm']:.3f}", flush=True)
+    ordered = sorted(meshes.values(), key=lambda m: m["n_tets"])
     result = {"kind": "graded_mesh", "study": str(args.study), "scales": args.scales,
-              "command": "python scripts/graded_mesh.py --sizes " + " ".join(tag(s).replace("_", ":") for s in args.sizes),
-              "meshes": sorted(meshes.values(), key=lambda m: m["n_tets"])}
+              # the file merges runs: each mesh names the command that judged it, and these are all of them
+              "commands": list(dict.fromkeys(m["command"] for m in ordered if "command" in m)),
+              "meshes": ordered}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {args.json} ({time.perf_counter() - t0:.0f} s this run)")

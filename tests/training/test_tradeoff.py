@@ -168,3 +168,25 @@ def test_a_graded_mesh_judged_on_fewer_cases_is_left_out_and_named():
     levels = graded_levels(data, skipped)
     assert [lv.label for lv in levels] == ["graded 15.6:4:2 mm", "graded 15.6:4:2:1.2 mm"]
     assert skipped == ["15.6_4_2_0.9"]
+
+
+@pytest.mark.parametrize("name", ["graded_mesh.json", "graded_mesh_5levels.json"])
+def test_each_committed_graded_mesh_names_the_command_that_judged_it(name):
+    """The file merges meshes judged by several runs: each mesh's command, read by the script's own parser,
+    asks for that mesh's sizes, the file's study levels and exactly the cases the mesh holds."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location("graded_mesh", root / "scripts" / "graded_mesh.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    data = json.loads((root / "docs" / name).read_text())
+    assert "command" not in data and data["commands"] == list(dict.fromkeys(m["command"] for m in data["meshes"]))
+    for mesh in data["meshes"]:
+        argv = mesh["command"].split()
+        assert argv[:2] == ["python", "scripts/graded_mesh.py"]
+        args = script.parser().parse_args(argv[2:])
+        assert [script.tag(s) for s in args.sizes] == [mesh["tag"]]
+        assert args.scales == data["scales"] and str(args.study) == data["study"] and args.json == Path("docs") / name
+        assert [f"{d:g} mm, {b:g} deg" for d, b in (tuple(map(float, c.split(":"))) for c in args.cases)] == list(mesh["cases"])
