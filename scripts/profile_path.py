@@ -2,6 +2,10 @@
 factorisations, multiplier updates and time per load step, and their totals.
 
     python scripts/profile_path.py --mesh runs/default_contact/mesh.npz --angle-deg 10 --to-mm 10
+    python scripts/profile_path.py --scale 0.5917 --volumetric taylor_hood --mesh runs/p32/mesh.npz
+
+--scale S multiplies every mesh size of the scene (a level of the convergence study, which scales
+fem_offline/scenes/default.toml); the scene is meshed into --mesh when that file does not exist yet.
 
 What the solver's iteration counts are worth is read here, not from a sweep's wall time (several
 paths share the cores there). Set MKL_NUM_THREADS to compare like with like.
@@ -11,19 +15,26 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
+from contracts.mesh import write_mesh
 from fem_offline.continuation import solve_path
+from fem_offline.convergence import scaled_scene, study_scene
+from fem_offline.meshing import mesh_for_scene
 from fem_offline.mesh import load
 from fem_offline.problem import build_problem
-from fem_offline.scene import load_scene
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="fem_offline/scenes/default.toml")
-    ap.add_argument("--mesh", required=True, help="mesh.npz of the scene (e.g. a sweep folder's)")
+    ap.add_argument("--mesh", type=Path, required=True,
+                    help="mesh.npz of the scene (e.g. a sweep folder's); meshed from the scene if it does not exist")
+    ap.add_argument("--scale", type=float, help="every mesh size of the scene x SCALE (a convergence study level)")
+    ap.add_argument("--volumetric", choices=["pointwise", "mean_dilatation", "taylor_hood"],
+                    help="the scene's solver.volumetric instead of its own")
     ap.add_argument("--angle-deg", type=float, default=10.0)
     ap.add_argument("--to-mm", type=float, default=10.0)
     ap.add_argument("--double-factors", action="store_true",
@@ -33,7 +44,14 @@ def main() -> None:
         import fem_offline.newton as newton
 
         newton.SINGLE_FACTORS = False
-    scene = load_scene(args.scene)
+    scene = study_scene(args.scene, volumetric=args.volumetric)
+    if args.scale is not None:
+        if not args.scale > 0:
+            ap.error(f"--scale: {args.scale:g} must be > 0")
+        scene = scaled_scene(scene, args.scale)
+    if not args.mesh.exists():
+        args.mesh.parent.mkdir(parents=True, exist_ok=True)
+        write_mesh(args.mesh, mesh_for_scene(scene))
     problem = build_problem(scene, load(args.mesh))
     step = scene.sweep.displacement_step_mm
     ds = np.arange(step, args.to_mm + 1e-9, step)
