@@ -91,9 +91,10 @@ def test_dask_cluster_matches_local_pool(tmp_path):
 
     scene = load_scene(scene_file(tmp_path, "mini", MINI))
     local = run_sweep(scene, tmp_path / "local", workers=2)
-    # The same mesh for both (a sweep reuses its folder's mesh.npz): gmsh is not bit-reproducible, and a
-    # CI run once failed here with every node 0.5 % off and 0.84 mm near the tip, the pattern of a remeshed
-    # scene's nodes compared by index. What is compared is the Dask path against the pool.
+    # The same mesh for both (a sweep reuses its folder's mesh.npz), so what is compared is the Dask path
+    # against the pool, not two gmsh runs. A CI run once failed here with most nodes about 0.5 % off and
+    # 0.84 mm at the worst, which nodes compared by index across two different meshes would give; it was not
+    # reproduced (16 runs, idle and loaded), so if the solve was the cause this still fails.
     (tmp_path / "dask").mkdir()
     shutil.copyfile(tmp_path / "local" / "mesh.npz", tmp_path / "dask" / "mesh.npz")
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
