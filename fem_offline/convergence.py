@@ -205,18 +205,11 @@ def run_study(scene: Scene, scales: list[float], out: Path, cases=HARD_CASES) ->
     Returns the raw numbers: per level its tet count and solve times, per case and level the
     displacements (k, 3) at every probe point, and the probe points themselves.
     """
-    from contracts.mesh import write_mesh
-
-    from .meshing import mesh_for_scene
+    from .meshing import kept_mesh
     from .problem import build_problem
 
     out.mkdir(parents=True, exist_ok=True)
-    meshes = []
-    for scale in scales:
-        path = out / f"mesh_{scale:g}.npz"  # gmsh is not bit-reproducible: keep each level's mesh
-        if not path.exists():
-            write_mesh(path, mesh_for_scene(scaled_scene(scene, scale)))
-        meshes.append(read_mesh(path))
+    meshes = [kept_mesh(scaled_scene(scene, scale), out / f"mesh_{scale:g}.npz") for scale in scales]
     reference = meshes[[abs(s - 1.0) for s in scales].index(min(abs(s - 1.0) for s in scales))]
     probes = probe_points(reference, scene)
     levels = []

@@ -26,6 +26,18 @@ def mesh_for_scene(scene: Scene) -> TetMesh:
     return build_node_sets(base, scene)
 
 
+def kept_mesh(scene: Scene, path: str | Path) -> TetMesh:
+    """The scene's mesh saved at `path` (.npz), meshed and saved there first if it is not yet: gmsh is not
+    bit-reproducible, so a sweep, a study level or a profiled path keeps the mesh it was solved on."""
+    from contracts.mesh import read_mesh, write_mesh
+
+    path = Path(path)
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_mesh(path, mesh_for_scene(scene))
+    return read_mesh(path)
+
+
 def load_or_build_mesh(scene: Scene, path: str | Path | None) -> TetMesh:
     """Read a saved mesh (re-deriving node sets for this scene's guide) or build a new one."""
     if path is None:

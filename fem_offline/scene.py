@@ -11,7 +11,7 @@ import hashlib
 import json
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -230,6 +230,10 @@ class MeshSize(_Strict):
     surface_near_tip_mm: Annotated[float, Field(gt=0.05, le=100)] | None = None
 
 
+Volumetric = Literal["pointwise", "mean_dilatation", "taylor_hood"]
+VOLUMETRIC: tuple[str, ...] = get_args(Volumetric)  # the choices of solver.volumetric, for the scripts' --volumetric
+
+
 class Solver(_Strict):
     """Newton and load-stepping controls."""
 
@@ -240,7 +244,7 @@ class Solver(_Strict):
     # "pointwise": the P2 element as it is; "mean_dilatation": the volumetric term at each tet's mean
     # volume ratio (P2/P0, against volumetric locking at nu -> 0.5; fem_offline/elasticity.py);
     # "taylor_hood": a P1 pressure per tissue, eliminated in Newton (P2/P1, fem_offline/mixed.py)
-    volumetric: Literal["pointwise", "mean_dilatation", "taylor_hood"] = "pointwise"
+    volumetric: Volumetric = "pointwise"
 
 
 SNAP_MM = 2.0  # default guide.snap_mm of a label-map scene: about two voxels of a clinical T2 segmentation

@@ -39,13 +39,13 @@ import numpy as np
 
 from contracts import sweep as folder
 from contracts.files import atomic_savez, sha256
-from contracts.mesh import TetMesh, read_mesh, write_mesh
+from contracts.mesh import TetMesh, read_mesh
 
 from .continuation import PathState, solve_path
 from .guide import is_mirrored
 from .labelmap import source_of
 from .linear import linear_modes, min_det_f, superpose
-from .meshing import mesh_for_scene
+from .meshing import kept_mesh
 from .mirror import mirror_map, reflect
 from .newton import ConvergenceError, Stats
 from .problem import build_problem
@@ -94,12 +94,7 @@ def prepare(scene: Scene, out: Path) -> TetMesh:
             raise SceneError(f"{out} holds a sweep of another label map (sha256 {old.source.sha256[:12]}); use a new --out")
         if old.validity is None and not old.nonlinear and old.snapshots:
             raise SceneError(f"{out} holds linear snapshots written before det(I + grad u) was checked; use a new --out")
-    mesh_path = out / folder.MESH_FILE
-    if mesh_path.exists():
-        return read_mesh(mesh_path)
-    mesh = mesh_for_scene(scene)
-    write_mesh(mesh_path, mesh)
-    return mesh
+    return kept_mesh(scene, out / folder.MESH_FILE)
 
 
 @lru_cache(maxsize=2)

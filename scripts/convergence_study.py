@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, analyse, run_study, study_scene
+from fem_offline.scene import VOLUMETRIC
 
 
 BIG = ("prostate_surface", "nodes")  # fields at thousands of points: summarised, not stored
@@ -124,7 +125,7 @@ def main() -> int:
     ap.add_argument("--guide", choices=("contact", "glued"),
                     help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: the scene's)")
     ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
-    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation", "taylor_hood"),
+    ap.add_argument("--volumetric", choices=VOLUMETRIC,
                     help="the element's volumetric term (solver.volumetric; default: the scene's)")
     ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
     ap.add_argument("--docs", type=Path, default=Path("docs"))

@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.mesh import read_mesh, write_mesh
+from contracts.mesh import read_mesh
 from fem_offline.convergence import (HARD_CASES, NEAR_TIP_MM, at_points, case_levels, converged_estimate, probe_points,
                                      solve_resumable, study_scene)
-from fem_offline.meshing import mesh_for_scene
+from fem_offline.meshing import kept_mesh
 from fem_offline.problem import build_problem
 
 
@@ -67,10 +67,7 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
     scene = scene.model_copy(update={"mesh": scene.mesh.model_copy(
         update={"max_mm": mx, "prostate_mm": prostate, "guide_mm": guide, "surface_near_tip_mm": shell})})
     folder = out / tag(sizes)
-    folder.mkdir(parents=True, exist_ok=True)
-    if not (folder / "mesh.npz").exists():  # gmsh is not bit-reproducible: keep the mesh
-        write_mesh(folder / "mesh.npz", mesh_for_scene(scene))
-    mesh = read_mesh(folder / "mesh.npz")
+    mesh = kept_mesh(scene, folder / "mesh.npz")
     probes = probe_points(read_mesh(study / "mesh_1.npz"), scene)
     tip = np.asarray(scene.guide.tip_mm)
     near_probe = np.linalg.norm(probes["prostate_surface"] - tip, axis=1) < NEAR_TIP_MM

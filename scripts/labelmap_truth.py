@@ -60,12 +60,14 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
 
 
 def main() -> int:
+    from fem_offline.scene import VOLUMETRIC
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spacing-mm", type=float, nargs="+", default=[1.0])
     ap.add_argument("--mesher", default="cgal", choices=("cgal", "tetgen"))
     ap.add_argument("--facet-distance-voxels", type=float, nargs="+", default=[0.5],
                     help="CGAL's label_map.facet_distance_voxels, one run each")
-    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation", "taylor_hood"),
+    ap.add_argument("--volumetric", choices=VOLUMETRIC,
                     help="the element (solver.volumetric; default: patient.toml's)")
     ap.add_argument("--work", type=Path, default=Path("runs/labelmap_truth"))
     ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),

@@ -43,7 +43,7 @@ from fem_offline.continuation import solve_path
 from fem_offline.convergence import at_points, probe_points, richardson, scaled_scene, study_scene
 from fem_offline.meshing import mesh_for_scene
 from fem_offline.problem import build_problem
-from fem_offline.scene import Scene
+from fem_offline.scene import VOLUMETRIC, Scene
 
 from solver_tolerance import with_tolerances  # scripts/ is on sys.path when run as a script
 
@@ -122,7 +122,7 @@ def main() -> None:
     ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917, 0.455])
     ap.add_argument("--poisson", type=float, nargs="+", default=[0.495, 0.45])
     ap.add_argument("--case", type=float, nargs=2, default=[2.0, 0.0], metavar=("D_MM", "BETA_DEG"))
-    ap.add_argument("--volumetric", choices=("pointwise", "mean_dilatation", "taylor_hood"), default="pointwise",
+    ap.add_argument("--volumetric", choices=VOLUMETRIC, default="pointwise",
                     help="the element's volumetric term (solver.volumetric): the P2 element as it is, per tet, "
                          "or a P1 pressure (Taylor-Hood)")
     ap.add_argument("--rtol", type=float, default=1e-8)

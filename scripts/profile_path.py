@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from contracts.mesh import write_mesh
 from fem_offline.continuation import solve_path
 from fem_offline.convergence import scaled_scene, study_scene
-from fem_offline.meshing import mesh_for_scene
+from fem_offline.meshing import kept_mesh
 from fem_offline.mesh import load
 from fem_offline.problem import build_problem
+from fem_offline.scene import VOLUMETRIC
 
 
 def main() -> None:
@@ -33,7 +33,7 @@ def main() -> None:
     ap.add_argument("--mesh", type=Path, required=True,
                     help="mesh.npz of the scene (e.g. a sweep folder's); meshed from the scene if it does not exist")
     ap.add_argument("--scale", type=float, help="every mesh size of the scene x SCALE (a convergence study level)")
-    ap.add_argument("--volumetric", choices=["pointwise", "mean_dilatation", "taylor_hood"],
+    ap.add_argument("--volumetric", choices=VOLUMETRIC,
                     help="the scene's solver.volumetric instead of its own")
     ap.add_argument("--angle-deg", type=float, default=10.0)
     ap.add_argument("--to-mm", type=float, default=10.0)
@@ -49,10 +49,7 @@ def main() -> None:
         if not args.scale > 0:
             ap.error(f"--scale: {args.scale:g} must be > 0")
         scene = scaled_scene(scene, args.scale)
-    if not args.mesh.exists():
-        args.mesh.parent.mkdir(parents=True, exist_ok=True)
-        write_mesh(args.mesh, mesh_for_scene(scene))
-    problem = build_problem(scene, load(args.mesh))
+    problem = build_problem(scene, kept_mesh(scene, args.mesh) if args.mesh.suffix == ".npz" else load(args.mesh))
     step = scene.sweep.displacement_step_mm
     ds = np.arange(step, args.to_mm + 1e-9, step)
     print(f"{args.mesh}: {len(problem.mesh.tets)} tets, {problem.n_dofs} DOFs; beta {args.angle_deg:g} deg, "

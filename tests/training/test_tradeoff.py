@@ -1,6 +1,7 @@
 """End-to-end error of a configuration, its Pareto front and build-cost arithmetic, on hand-made inputs."""
 
 import json
+import shlex
 
 import numpy as np
 import pytest
@@ -184,7 +185,7 @@ def test_each_committed_graded_mesh_names_the_command_that_judged_it(name):
     data = json.loads((root / "docs" / name).read_text())
     assert "command" not in data and data["commands"] == list(dict.fromkeys(m["command"] for m in data["meshes"]))
     for mesh in data["meshes"]:
-        argv = mesh["command"].split()
+        argv = shlex.split(mesh["command"])
         assert argv[:2] == ["python", "scripts/graded_mesh.py"]
         args = script.parser().parse_args(argv[2:])
         assert [script.tag(s) for s in args.sizes] == [mesh["tag"]]
