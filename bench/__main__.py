@@ -1,0 +1,6 @@
+import sys
+
+import bench
+from studies._cli import dispatch
+
+sys.exit(dispatch(bench))
