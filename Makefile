@@ -76,24 +76,24 @@ bench: $(STAMP)
 bench-service: $(STAMP)
 	$(PY) scripts/bench_service.py --model $(MODEL)
 
-# Accuracy vs time on the end-to-end error (docs/tradeoff.*): $(RUNS) must be a sweep on one level of the
+# Accuracy vs time on the end-to-end error (docs/results/tradeoff.*): $(RUNS) must be a sweep on one level of the
 # convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default_graded (the
 # default's sweep); the tiny-mesh check builds its two sweeps once.
 # The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
-CONVERGENCE ?= docs/convergence_contact_taylor_hood_5levels.json
-GRADED ?= docs/graded_mesh_5levels.json
+CONVERGENCE ?= docs/results/convergence_taylor_hood.json
+GRADED ?= docs/results/graded_mesh.json
 tradeoff: $(STAMP)
 	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
 	    --graded $(GRADED) --mesh-check runs/tiny_mesh_check
 
-# The grid-convergence studies of both guide-wall models (docs/convergence_contact.*, docs/convergence.*)
-# and their comparison (docs/contact_vs_glued.*); resumable: run it again to go on.
+# The grid-convergence studies of both guide-wall models (docs/results/convergence_pointwise.json, docs/results/convergence_glued.json)
+# and their comparison (docs/results/contact_vs_glued.json); resumable: run it again to go on.
 convergence: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(SCALES)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide glued --scales 1.69 1.3 1
 	$(PY) scripts/contact_vs_glued.py
 
-# The default model's FE error against the Taylor-Hood element's converged estimate (docs/fe_error_default.json):
+# The default model's FE error against the Taylor-Hood element's converged estimate (docs/results/fe_error_default.json):
 # the study on five contact levels (resumable; each case is judged on the three finest levels that solved it), the
 # model against it node by node, then the stamp in models/default (manifest, report.md; the ONNX graph and the mesh
 # stay as they are). 20-58 min for the three coarser levels, 85 min for the fourth, 79-141 min a case for the
@@ -105,8 +105,8 @@ fe-error-taylor-hood: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(TH_SCALES) \
 	    --volumetric taylor_hood --cases $(TH_CASES) --name $(TH_NAME)
 	$(PY) scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
-	    --scales $(TH_SCALES) --cases $(TH_CASES) --json docs/fe_error_default.json
-	$(PY) -m training restamp --model models/default --fe-error docs/fe_error_default.json
+	    --scales $(TH_SCALES) --cases $(TH_CASES) --json docs/results/fe_error_default.json
+	$(PY) -m training restamp --model models/default --fe-error docs/results/fe_error_default.json
 
 # Meshes graded where the error is ($(GRADED)): each solves the hard cases (6-9 min here) and is judged
 # against the Taylor-Hood study's converged estimate (its folder from fe-error-taylor-hood); resumable.
@@ -114,7 +114,7 @@ GRADED_SIZES ?= 15.600000000000001:4:2 15.600000000000001:3.08:2.6 15.6000000000
 graded-mesh: $(STAMP)
 	MKL_NUM_THREADS=2 $(PY) scripts/graded_mesh.py --sizes $(GRADED_SIZES) --scales $(TH_SCALES) --json $(GRADED)
 
-# Up to which displacement the linear model is a deformation (docs/linear_validity.*), on the default model's
+# Up to which displacement the linear model is a deformation (docs/results/linear_validity.json), on the default model's
 # scene; 2 min. With its nonlinear sweep in $(RUNS) (default-model's) it compares with it on the same mesh and
 # bounds det F of all its snapshots.
 linear-validity: $(STAMP)
@@ -146,7 +146,7 @@ labelmesh: $(STAMP)
 	$(PY) -m pip install -q -e '.[labelmesh]'
 
 # Marker motion of the three anatomical variants (fem_offline/scenes/anatomy/) at 10 mm, beta = 0, on their
-# 1 mm label maps' meshes with the scenes' physics: docs/anatomy_table.json (scripts/anatomy_table.py; needs
+# 1 mm label maps' meshes with the scenes' physics: docs/results/anatomy_table.json (scripts/anatomy_table.py; needs
 # `make labelmesh`). Each variant's mesh and solve resume: VARIANTS=small runs one.
 VARIANTS ?= small medium large
 anatomy-table: $(STAMP)

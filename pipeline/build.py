@@ -20,9 +20,11 @@ from contracts.model import PAPER_TEST_CASES, FitOptions, ModelManifest
 log = logging.getLogger(__name__)
 
 
-# The label-map FE error estimates (scripts/labelmap_truth.py): the model's manifest states the row of its
-# voxel size and mesher as its FE error, an estimate said to be one; none where no row matches.
-FE_ESTIMATE = Path(__file__).resolve().parents[1] / "docs" / "labelmap_truth.json"
+# The label-map FE error estimates (`python -m studies labelmap-truth`): the model's manifest states the row of
+# its voxel size and mesher as its FE error, an estimate said to be one; none where no row matches. Package data,
+# a copy of docs/results/labelmap_truth.json (tests/pipeline/test_package_data.py checks that the two agree), so an
+# installed pipeline does not read the docs folder.
+FE_ESTIMATE = Path(__file__).resolve().parent / "data" / "labelmap_fe_error.json"
 
 
 @dataclass(frozen=True)
@@ -31,7 +33,7 @@ class BuildOptions:
     seed: int = 0
     rank: int = 32
     # 1 x 30 hidden: on the patient sweep's 6 angles (4 deg) 1 x 60 misses the angles between them by
-    # 0.11 mm at the markers, 1 x 30 by 0.005 (scripts/sweep_density.py, docs/sweep_density_patient.json)
+    # 0.11 mm at the markers, 1 x 30 by 0.005 (docs/results/sweep_density_patient.json)
     width: int = 30
     workers: int = 2
     fe_estimate: Path | None = FE_ESTIMATE

@@ -35,7 +35,7 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--snapshots", required=True, type=Path, help="a `fem_offline sweep` output folder")
     f.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
     f.add_argument("--offgrid", type=Path, help="folder of `fem_offline cases` cases to evaluate on")
-    f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh (docs/convergence.json): "
+    f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh (docs/results/convergence_taylor_hood.json): "
                    "the FE discretisation error, added to the surrogate's for the end-to-end bound")
     f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="PCA modes (default 16, the paper's)")
     f.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units per layer (default 60)")
@@ -47,7 +47,7 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("restamp", help="stamp a model folder's accuracy again with another FE estimate, without refitting")
     r.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
     r.add_argument("--fe-error", required=True, type=Path,
-                   help="scripts/model_vs_converged.py's JSON for this model (docs/fe_error_default.json)")
+                   help="scripts/model_vs_converged.py's JSON for this model (docs/results/fe_error_default.json)")
     return ap
 
 

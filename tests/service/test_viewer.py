@@ -198,7 +198,7 @@ def test_a_click_on_the_prostate_adds_a_target_that_moves_as_predict_says(viewer
     assert f"moved {target['motionMm']:.2f} mm" in page.inner_text("#targets")
     # interpolated on the page from the frame's own reply: still one /predict request a frame
     assert page.evaluate("__viewer.lastRequests") == 1
-    shot = tmp_path / "viewer.png"  # the test's artifact (docs/viewer.png comes from scripts/viewer_screenshot.py)
+    shot = tmp_path / "viewer.png"  # the test's artifact (docs/img/viewer.png comes from the viewer screenshot study)
     wait_still(page)
     page.screenshot(path=shot)
     assert shot.stat().st_size > 10_000 and problems == []
