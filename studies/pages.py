@@ -1,0 +1,209 @@
+"""Markdown from measured results: the README's generated tables and the docs site's result blocks.
+
+Every block names where its numbers come from: the model manifest, or a committed result under
+docs/results/ with its provenance (command, commit, date, machine). A block whose result was measured
+at a commit older than the last change to the code it describes says so.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+from pathlib import Path
+
+from studies.results import DOCS_RESULTS, ROOT
+
+MANIFEST = ROOT / "models" / "default" / "manifest.json"
+BENCH_SERVICE = "bench_service"
+# The code a result describes, by the study's name prefix: a result older than the last commit that
+# touched these paths is flagged as possibly stale. The FE studies describe fem_offline; the model's
+# accuracy and the trade-off also training; the service benchmark the service.
+CODE_OF = (("bench_service", ("service", "models/default")), ("fe_error", ("fem_offline", "training", "models/default")),
+           ("tradeoff", ("fem_offline", "training")), ("sweep_density", ("fem_offline", "training")),
+           ("", ("fem_offline",)))
+REGIONS = (("markers", "markers"), ("interior", "interior points"), ("prostate_surface", "prostate surface"),
+           ("all_nodes", "every node"))
+
+
+def _git(*args: str) -> str | None:
+    """A git command's stdout in the repository, or None outside a checkout or when git fails."""
+    try:
+        out = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return out.stdout.strip()
+
+
+def code_paths(name: str) -> tuple[str, ...]:
+    """The folders whose code the result NAME describes (CODE_OF, first matching prefix)."""
+    return next(paths for prefix, paths in CODE_OF if name.startswith(prefix))
+
+
+def stale_note(commit: str, paths: tuple[str, ...]) -> str:
+    """A warning when `paths` changed in a commit after `commit`; "" when they did not or git cannot tell."""
+    commit = commit.removesuffix("-dirty")
+    if not re.fullmatch(r"[0-9a-f]{7,40}", commit) or _git("cat-file", "-e", f"{commit}^{{commit}}") is None:
+        return ""
+    later = _git("log", "-1", "--format=%h %cs", f"{commit}..HEAD", "--", *paths)
+    if not later:
+        return ""
+    return (f"!!! warning \"Older than the code\"\n    Measured at {commit[:10]}; {', '.join(paths)} "
+            f"changed since (last in {later}). The figures describe the code as it was then.\n")
+
+
+def provenance_line(result: dict) -> str:
+    """One line: the command that made the result, its commit, date and machine."""
+    p = result.get("provenance")
+    if not p:
+        return "*No provenance recorded.*"
+    m = p.get("machine", {})
+    machine = f"{m.get('cores', '?')} cores, {m.get('cpu_model', 'unknown CPU')}"
+    if m.get("load_1min") is not None:
+        machine += f", load {m['load_1min']}"
+    note = f" ({p['note']})" if p.get("note") else ""
+    mnote = f"; {m['note']}" if m.get("note") else ""
+    return (f"*Measured by* `{p['command']}` *at commit* `{str(p['commit'])[:10]}` *on {p['date'][:10]}, "
+            f"{machine}{mnote}.*{note}")
+
+
+def load(name: str, folder: Path = DOCS_RESULTS) -> dict | None:
+    """docs/results/NAME.json, or None when there is no committed result."""
+    path = Path(folder) / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _mm(x) -> str:
+    """Millimetres to 3 decimals (4 below 0.01 mm, so a small surrogate error is not shown as 0.001)."""
+    return "—" if x is None else f"{x:.4f}" if abs(x) < 0.01 else f"{x:.3f}"
+
+
+def accuracy_table(manifest_path: Path = MANIFEST) -> str:
+    """The default model's accuracy per region: surrogate vs its own FE, FE vs the converged estimate, end to end."""
+    m = json.loads(Path(manifest_path).read_text())
+    acc = m["accuracy"]["regions"]
+    rows = ["| region | surrogate vs its own FE (mm) | FE vs converged estimate (mm) | end to end (mm) |",
+            "|---|---|---|---|"]
+    for key, label in REGIONS:
+        if key in acc:
+            r = acc[key]
+            rows.append(f"| {label} | {_mm(r['surrogate_mm'])} | {_mm(r['fe_discretisation_mm'])} | "
+                        f"**{_mm(r['end_to_end_mm'])}** |")
+    rel = Path(manifest_path).resolve().relative_to(ROOT) if Path(manifest_path).resolve().is_relative_to(ROOT) else manifest_path
+    mesh = m["mesh"]
+    return "\n".join([
+        f"Largest error over the region's points and the held-out cases, `{m['name']}` model "
+        f"({mesh['n_tets']:,} tets, {mesh['n_nodes']:,} nodes, PCA rank {m['pca']['rank']}, "
+        f"{m['network']['depth']}x{m['network']['width']} network). End to end = surrogate + FE: what a user of the "
+        "answer faces, against the converged FE estimate; the inputs' own uncertainty is not included.", "",
+        *rows, "", f"*Generated from* `{rel}` *(accuracy.regions; the model built {m['created_utc'][:10]} by* `make default-model`*) "
+        "by* `python -m studies readme`. *The FE column comes from docs/results/fe_error_default.json:* "
+        + _provenance_brief(load("fe_error_default"))])
+
+
+def _provenance_brief(result: dict | None) -> str:
+    """`command` at commit, date: the short form of provenance_line for a sentence."""
+    if not result or "provenance" not in result:
+        return "*no provenance recorded.*"
+    p = result["provenance"]
+    return f"`{p['command']}` *at* `{str(p['commit'])[:10]}`*, {p['date'][:10]}.*"
+
+
+def speed_table(folder: Path = DOCS_RESULTS) -> str:
+    """The service benchmark's README rows (docs/results/bench_service.json), or a line saying there is none."""
+    result = load(BENCH_SERVICE, folder)
+    if result is None or not result.get("readme_rows"):
+        return ("The service benchmark has no committed result yet (`python -m bench service --publish` "
+                "writes docs/results/bench_service.json).")
+    rows = ["| request | p50 (ms) | p99 (ms) | requests/s |", "|---|---|---|---|"]
+    rows += [f"| {r['what']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['req_s']:,.0f} |" for r in result["readme_rows"]]
+    return "\n".join([*rows, "", provenance_line(result).replace("*Measured by*", "*Generated from docs/results/"
+                      "bench_service.json by* `python -m studies readme`; *measured by*", 1)])
+
+
+# --- the README's generated blocks ---------------------------------------------------------------
+
+BLOCKS = {"accuracy": accuracy_table, "speed": speed_table}
+
+
+def fill(text: str, blocks: dict | None = None) -> str:
+    """`text` with each `<!-- generated:NAME -->...<!-- /generated:NAME -->` block rewritten by BLOCKS[NAME]()."""
+    blocks = BLOCKS if blocks is None else blocks
+
+    def one(match: re.Match) -> str:
+        name = match.group(1)
+        return f"<!-- generated:{name} -->\n{blocks[name]()}\n<!-- /generated:{name} -->"
+
+    return re.sub(r"<!-- generated:(\w+) -->.*?<!-- /generated:\1 -->", one, text, flags=re.S)
+
+
+# --- the docs site's result blocks --------------------------------------------------------------
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (dict, list)):
+        return "…"
+    return str(v)
+
+
+def rows_table(rows: list[dict], limit: int = 40) -> str:
+    """A list of flat-ish dicts as a Markdown table (nested values elided, scalars only)."""
+    cols = [k for k in rows[0] if not isinstance(rows[0][k], (dict, list))]
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    out += ["| " + " | ".join(_cell(r.get(c)) for c in cols) + " |" for r in rows[:limit]]
+    if len(rows) > limit:
+        out.append(f"\n*{len(rows) - limit} more rows in the JSON.*")
+    return "\n".join(out)
+
+
+def _band(region) -> str:
+    """A region's fine-level band: the max over markers/points (GCI of the vector) or the pointwise band's max."""
+    if isinstance(region, list):
+        return _mm(max(p.get("gci_vector_mm", p.get("gci_fine_mm")) or 0.0 for p in region))
+    return _mm(region["gci_mm"]["max"] if isinstance(region.get("gci_mm"), dict) else region.get("gci_mm"))
+
+
+def convergence_table(result: dict) -> str:
+    """A grid-convergence study: its levels, and per case the finest level's error band per region (mm)."""
+    a = result["analysis"]
+    levels = a.get("coarser_levels", []) + a["levels"]
+    head = ", ".join(f"{lv['n_tets']:,} tets (x{lv['scale']:g})" for lv in levels)
+    regions = (("markers", "markers"), ("interior", "interior points"), ("surface_near_tip", "surface < 8 mm from tip"),
+               ("surface_rest", "rest of surface"), ("all_nodes", "every node"))
+    out = [f"Levels: {head}; the band is the finest level's grid convergence index (Fs 1.25), max over the points, "
+           f"in mm, from the three finest.", "",
+           "| case | " + " | ".join(r for _, r in regions) + " | convergence (every node) |", "|---|" + "---|" * (len(regions) + 1)]
+    for case, c in a["cases"].items():
+        out.append(f"| {case} | " + " | ".join(_band(c[k]) for k, _ in regions)
+                   + f" | {c['all_nodes'].get('mean_kind', '—')} |")
+    return "\n".join(out)
+
+
+def result_block(name: str, folder: Path = DOCS_RESULTS) -> str:
+    """The Markdown a docs page shows for docs/results/NAME.json: its figures, provenance and staleness."""
+    result = load(name, folder)
+    if result is None:
+        return f"*No committed result `{name}` yet.*"
+    if "report_md" in result:  # a study that wrote a Markdown report: shown under its own heading levels
+        body = re.sub(r"^(#+) ", r"\1## ", result["report_md"].split("\n", 1)[1], flags=re.M)
+        body = re.sub(r"\]\((\w+)\.(json|png)\)", r"](results/\1.\2)", body)
+    elif "analysis" in result and "levels" in result:
+        body = convergence_table(result)
+    elif isinstance(result.get("rows"), list) and result["rows"]:
+        body = rows_table(result["rows"])
+    elif isinstance(result.get("meshes"), list):
+        body = rows_table(result["meshes"])
+    elif "readme_rows" in result:
+        body = speed_table(folder)
+    else:
+        body = "Keys: " + ", ".join(f"`{k}`" for k in result if k != "provenance") + " (see the JSON)."
+    stale = stale_note(str(result.get("provenance", {}).get("commit", "")), code_paths(name))
+    return "\n".join([stale, body, "", provenance_line(result), f"[{name}.json](results/{name}.json)", ""])
+
+
+def render_page(text: str, folder: Path = DOCS_RESULTS) -> str:
+    """A page with each `{{ result NAME }}` replaced by that result's block, and `{{ accuracy }}`, `{{ speed }}`."""
+    text = re.sub(r"\{\{\s*result\s+\"?(\w+)\"?\s*\}\}", lambda m: result_block(m.group(1), folder), text)
+    text = re.sub(r"\{\{\s*accuracy\s*\}\}", lambda m: accuracy_table(), text)
+    return re.sub(r"\{\{\s*speed\s*\}\}", lambda m: speed_table(folder), text)
