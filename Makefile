@@ -9,7 +9,8 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 IMAGE ?= deform-service
 
-.PHONY: install serve test test-fast bench bench-service tradeoff convergence fe-error-taylor-hood graded-mesh linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
+.DEFAULT_GOAL := help
+.PHONY: help docs docs-serve install serve test test-fast bench bench-service tradeoff convergence fe-error-taylor-hood graded-mesh linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -23,7 +24,7 @@ THREE := viewer/node_modules/three
 # pygalmesh (CGAL's labelled-image mesher, label-map scenes) builds against CGAL and Eigen headers.
 CGAL_DEBS := libcgal-dev libeigen3-dev
 
-system-deps:
+system-deps: ## the Debian libraries gmsh's wheel and the viewer's browser tests need (apt-get, when missing)
 	@if ! ldconfig -p | grep -q libGLU.so.1 || ! ldconfig -p | grep -q libXcursor.so.1 \
 	   || ! ldconfig -p | grep -q libXft.so.2 || ! ldconfig -p | grep -q libXinerama.so.1; then \
 	  echo "installing gmsh's system libraries: $(GMSH_DEBS)"; \
@@ -34,7 +35,7 @@ system-deps:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(BROWSER_DEBS) >/dev/null; \
 	fi
 
-viewer-assets:
+viewer-assets: ## three.js from npm into service/static/viewer/vendor (committed copies)
 	cd viewer && npm ci --no-audit --no-fund
 	mkdir -p $(VIEWER_VENDOR)
 	cp $(THREE)/build/three.module.js $(THREE)/build/three.core.js $(THREE)/examples/jsm/controls/OrbitControls.js \
@@ -47,7 +48,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
 
-install: $(STAMP)
+install: $(STAMP) ## create .venv and install everything (the dev extra)
 
 # The service alone needs none of the offline or training stack (no torch, gmsh).
 $(SERVE_STAMP): pyproject.toml
@@ -56,24 +57,42 @@ $(SERVE_STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[service]'
 	touch $(SERVE_STAMP)
 
-serve: $(SERVE_STAMP)
+serve: $(SERVE_STAMP) ## install the service alone and serve MODEL (models/default) on HOST:PORT (127.0.0.1:8000)
 	$(PY) -m service --model $(MODEL) --host $(HOST) --port $(PORT)
 
-test: $(STAMP)
+help: ## print every target with what it does
+	@awk 'BEGIN {FS = ":[^#]*## "} /^[a-zA-Z][a-zA-Z_-]*:.*## / {printf "  %-22s %s\n", $$1, $$2}' $(firstword $(MAKEFILE_LIST))
+
+# The documentation site (mkdocs.yml): MkDocs and its theme only; the pages render docs/results/ with studies.pages.
+DOCS_STAMP := $(VENV)/.installed-docs
+SITE ?= site
+$(DOCS_STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP) ## build the documentation site offline into SITE (site/), mkdocs --strict
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --site-dir $(SITE)
+
+docs-serve: $(DOCS_STAMP) ## serve the documentation site on 127.0.0.1:8001, rebuilding on change
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs serve --dev-addr 127.0.0.1:8001
+
+test: $(STAMP) ## install everything and run the whole test suite (what CI runs)
 	$(PY) -m pytest -q
 
 # The local loop: everything but the minutes-long nonlinear stability runs.
-test-fast: $(STAMP)
+test-fast: $(STAMP) ## the test suite without the slow nonlinear solves
 	$(PY) -m pytest -q -m "not slow"
 
 # Studies and benchmarks (README, "Commands"). Each prints what it measured; run one at a time.
 RUNS ?= runs/default
 # Mesh levels of the contact study (every size times each; ratio 1.3); the glued one stays at three.
 SCALES ?= 1.69 1.3 1 0.769
-bench: $(STAMP)
+bench: $(STAMP) ## FE timings on the default scene
 	MKL_NUM_THREADS=1 $(PY) scripts/bench_fem.py
 
-bench-service: $(STAMP)
+bench-service: $(STAMP) ## service latency and throughput on MODEL (models/default)
 	$(PY) scripts/bench_service.py --model $(MODEL)
 
 # Accuracy vs time on the end-to-end error (docs/results/tradeoff.*): $(RUNS) must be a sweep on one level of the
@@ -82,13 +101,13 @@ bench-service: $(STAMP)
 # The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
 CONVERGENCE ?= docs/results/convergence_taylor_hood.json
 GRADED ?= docs/results/graded_mesh.json
-tradeoff: $(STAMP)
+tradeoff: $(STAMP) ## accuracy vs time on the end-to-end error (RUNS= a sweep)
 	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
 	    --graded $(GRADED) --mesh-check runs/tiny_mesh_check
 
 # The grid-convergence studies of both guide-wall models (docs/results/convergence_pointwise.json, docs/results/convergence_glued.json)
 # and their comparison (docs/results/contact_vs_glued.json); resumable: run it again to go on.
-convergence: $(STAMP)
+convergence: $(STAMP) ## grid-convergence studies of both guide models and their comparison (resumable)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(SCALES)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide glued --scales 1.69 1.3 1
 	$(PY) scripts/contact_vs_glued.py
@@ -101,7 +120,7 @@ convergence: $(STAMP)
 TH_SCALES ?= 1.3 1 0.769 0.5917 0.4552
 TH_CASES ?= 10:0 10:10 5:5
 TH_NAME ?= convergence_contact_taylor_hood_5levels
-fe-error-taylor-hood: $(STAMP)
+fe-error-taylor-hood: $(STAMP) ## Taylor-Hood convergence study, models/default against it, restamp (hours; resumable)
 	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(TH_SCALES) \
 	    --volumetric taylor_hood --cases $(TH_CASES) --name $(TH_NAME)
 	$(PY) scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
@@ -111,13 +130,13 @@ fe-error-taylor-hood: $(STAMP)
 # Meshes graded where the error is ($(GRADED)): each solves the hard cases (6-9 min here) and is judged
 # against the Taylor-Hood study's converged estimate (its folder from fe-error-taylor-hood); resumable.
 GRADED_SIZES ?= 15.600000000000001:4:2 15.600000000000001:3.08:2.6 15.600000000000001:5.2:1.54
-graded-mesh: $(STAMP)
+graded-mesh: $(STAMP) ## meshes graded at the prostate and tip, judged against the converged estimate
 	MKL_NUM_THREADS=2 $(PY) scripts/graded_mesh.py --sizes $(GRADED_SIZES) --scales $(TH_SCALES) --json $(GRADED)
 
 # Up to which displacement the linear model is a deformation (docs/results/linear_validity.json), on the default model's
 # scene; 2 min. With its nonlinear sweep in $(RUNS) (default-model's) it compares with it on the same mesh and
 # bounds det F of all its snapshots.
-linear-validity: $(STAMP)
+linear-validity: $(STAMP) ## up to which push the linear model is a deformation
 	$(PY) scripts/linear_validity.py --scene $(DEFAULT_SCENE) $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS))
 
 # The committed models/default from scratch: sweep, off-grid cases (from rest), fit, then the
@@ -127,18 +146,18 @@ linear-validity: $(STAMP)
 # default_taylor_hood.toml is the model before it (the coarse level, 5,092 tets), default_fine.toml the
 # pointwise one before that (16,296 tets).
 DEFAULT_SCENE ?= fem_offline/scenes/default_graded.toml
-default-model: $(STAMP)
+default-model: $(STAMP) ## rebuild models/default from scratch: sweep, cases, fit, FE-error stamp (resumable)
 	$(PY) -m fem_offline sweep --scene $(DEFAULT_SCENE) --out $(RUNS)
 	$(PY) -m fem_offline cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 8 --seed 0
 	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 120 --offgrid $(RUNS)/offgrid
 	$(MAKE) fe-error-taylor-hood
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
-container-test:
+container-test: ## build the image with podman, POST /predict, stop it
 	bash scripts/container_test.sh $(IMAGE)
 
 # Label-map meshing (issue #14): CGAL's headers, then pygalmesh built against them (about 11 min).
-labelmesh: $(STAMP)
+labelmesh: $(STAMP) ## CGAL and pygalmesh for the default label-map mesher (about 11 min)
 	@if ! dpkg -s $(CGAL_DEBS) >/dev/null 2>&1; then \
 	  echo "installing CGAL and Eigen headers for pygalmesh: $(CGAL_DEBS)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(CGAL_DEBS) >/dev/null; \
@@ -149,8 +168,8 @@ labelmesh: $(STAMP)
 # 1 mm label maps' meshes with the scenes' physics: docs/results/anatomy_table.json (scripts/anatomy_table.py; needs
 # `make labelmesh`). Each variant's mesh and solve resume: VARIANTS=small runs one.
 VARIANTS ?= small medium large
-anatomy-table: $(STAMP)
+anatomy-table: $(STAMP) ## marker motion of the three anatomical variants (needs labelmesh)
 	MKL_NUM_THREADS=2 $(PY) scripts/anatomy_table.py --variants $(VARIANTS)
 
-clean:
-	rm -rf $(VENV) build *.egg-info
+clean: ## remove .venv and build outputs
+	rm -rf $(VENV) build *.egg-info site

@@ -142,18 +142,48 @@ def fill(text: str, blocks: dict | None = None) -> str:
 def _cell(v) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
-    if isinstance(v, (dict, list)):
-        return "…"
-    return str(v)
+    return "—" if v is None else str(v)
 
 
-def rows_table(rows: list[dict], limit: int = 40) -> str:
-    """A list of flat-ish dicts as a Markdown table (nested values elided, scalars only)."""
-    cols = [k for k in rows[0] if not isinstance(rows[0][k], (dict, list))]
+def flat(d: dict, prefix: str = "") -> dict:
+    """Scalar leaves of nested dicts as {"a.b.c": value}; lists are left out (they stay in the JSON)."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flat(v, key + "."))
+        elif not isinstance(v, list):
+            out[key] = v
+    return out
+
+
+def _is_error(key: str, value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and "mm" in key.rsplit(".", 1)[-1]
+
+
+def rows_table(rows: list[dict], limit: int = 40, max_cols: int = 12) -> str:
+    """Rows as a Markdown table: their identifying top-level scalars, then their millimetre figures
+    (nested ones flattened as a.b), up to `max_cols` columns; every other value stays in the JSON."""
+    flats = [flat(r) for r in rows]
+    ids = [k for k in flats[0] if "." not in k and not _is_error(k, flats[0][k]) and not str(flats[0][k]).startswith("python ")][:4]
+    mm = [k for k in dict.fromkeys(k for f in flats for k in f) if _is_error(k, next((f[k] for f in flats if k in f), None))]
+    cols = ids + mm[: max_cols - len(ids)]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    out += ["| " + " | ".join(_cell(r.get(c)) for c in cols) + " |" for r in rows[:limit]]
-    if len(rows) > limit:
-        out.append(f"\n*{len(rows) - limit} more rows in the JSON.*")
+    out += ["| " + " | ".join(_cell(f.get(c)) for c in cols) + " |" for f in flats[:limit]]
+    left = len(rows) - limit
+    if left > 0 or len(mm) > len(cols) - len(ids):
+        out.append(f"\n*More in the JSON{f' ({left} more rows)' if left > 0 else ''}.*")
+    return "\n".join(out)
+
+
+def figures_table(result: dict, limit: int = 30) -> str:
+    """A result without rows: its millimetre figures as (quantity, value), nested keys flattened as a.b."""
+    figs = [(k, v) for k, v in flat({k: v for k, v in result.items() if k != "provenance"}).items() if _is_error(k, v)]
+    if not figs:
+        return "Its figures are lists (see the JSON)."
+    out = ["| quantity | value |", "|---|---|"] + [f"| {k} | {_cell(v)} |" for k, v in figs[:limit]]
+    if len(figs) > limit:
+        out.append(f"\n*{len(figs) - limit} more figures in the JSON.*")
     return "\n".join(out)
 
 
@@ -197,7 +227,7 @@ def result_block(name: str, folder: Path = DOCS_RESULTS) -> str:
     elif "readme_rows" in result:
         body = speed_table(folder)
     else:
-        body = "Keys: " + ", ".join(f"`{k}`" for k in result if k != "provenance") + " (see the JSON)."
+        body = figures_table(result)
     stale = stale_note(str(result.get("provenance", {}).get("commit", "")), code_paths(name))
     return "\n".join([stale, body, "", provenance_line(result), f"[{name}.json](results/{name}.json)", ""])
 
