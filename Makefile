@@ -141,11 +141,8 @@ linear-validity: $(STAMP) ## up to which push the linear model is a deformation
 
 # The committed models/default from scratch: sweep, off-grid cases (from rest), fit, then the
 # stamp of its end-to-end error against the Taylor-Hood study's converged estimate (fe-error-taylor-hood).
-# Each step resumes. Its scene is default.toml with the Taylor-Hood element, the far field at the study's
-# coarse level and the prostate and tip at default.toml's sizes (default_graded.toml, 6,810 tets; graded-mesh);
-# default_taylor_hood.toml is the model before it (the coarse level, 5,092 tets), default_fine.toml the
-# pointwise one before that (16,296 tets).
-DEFAULT_SCENE ?= fem_offline/scenes/default_graded.toml
+# Each step resumes. Its scene is fem_offline/scenes/default.toml (Taylor-Hood, the tip in contact, 6,810 tets).
+DEFAULT_SCENE ?= fem_offline/scenes/default.toml
 default-model: $(STAMP) ## rebuild models/default from scratch: sweep, cases, fit, FE-error stamp (resumable)
 	$(PY) -m fem_offline sweep --scene $(DEFAULT_SCENE) --out $(RUNS)
 	$(PY) -m fem_offline cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 8 --seed 0

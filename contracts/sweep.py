@@ -10,9 +10,9 @@ A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus re
 
 A snapshot with det(I + grad u) <= 0 somewhere is not a deformation: an element is inside out. Each
 snapshot records min det F three times: `min_det_f` at the quadrature points the solver integrates at
-(4 per tet); `min_det_f_probe` at the denser probe points (fem_offline.validity.PROBE_INTORDER: the
+(4 per tet); `min_det_f_probe` at the denser probe points (fem_offline.fe.validity.PROBE_INTORDER: the
 11 points per tet of the degree-4 rule), because a P2 field can invert between the solver's points
-while positive at them; and `min_det_f_bound` over every point of every tet (fem_offline.validity.
+while positive at them; and `min_det_f_bound` over every point of every tet (fem_offline.fe.validity.
 det_f_bound): > 0, a proven lower bound; <= 0, det F at a point where it is <= 0 (often a tet's corner,
 which no quadrature point reaches). The nonlinear solver never returns a state with min_det_f <= 0, but
 the other two can be; the linear model's superposition turns all three <= 0 once the guide pushes far
@@ -74,7 +74,7 @@ class SnapshotRecord(_Frozen):
     seconds: float
     mirrored_from: str | None = None
     min_det_f_probe: float | None = None  # at the probe points (11 per tet); None: written before format 3
-    min_det_f_bound: float | None = None  # everywhere (fem_offline.validity.det_f_bound); None: before format 4
+    min_det_f_bound: float | None = None  # everywhere (fem_offline.fe.validity.det_f_bound); None: before format 4
 
     @property
     def lowest_det_f(self) -> float:

@@ -11,7 +11,7 @@ import numpy as np
 
 from contracts.cli import number
 
-from .scene import SceneError, load_scene
+from fem_offline.scene import SceneError, load_scene
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -52,11 +52,11 @@ def _parser() -> argparse.ArgumentParser:
 def _solve(args) -> None:
     from contracts import sweep as folder
 
-    from .linear import measured
-    from .meshing import load_or_build_mesh
-    from .problem import build_problem
-    from .solve import solve_case
-    from .validity import DetFCheck
+    from fem_offline.fe.linear import measured
+    from fem_offline.geometry.meshing import load_or_build_mesh
+    from fem_offline.fe.problem import build_problem
+    from fem_offline.fe.solve import solve_case
+    from fem_offline.fe.validity import DetFCheck
 
     if args.out.suffix != ".npz":
         raise ValueError(f"--out: must end in .npz, got {args.out}")
@@ -84,7 +84,7 @@ def _solve(args) -> None:
 
 
 def _sweep(args) -> int:
-    from .sweep import run_sweep
+    from fem_offline.sweep import run_sweep
 
     if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
@@ -115,8 +115,8 @@ def _inversion_warning(manifest) -> str:
 
 
 def _cases(args) -> int:
-    from .cases import mesh_for_cases, solve_cases
-    from .meshing import load_or_build_mesh
+    from fem_offline.cases import mesh_for_cases, solve_cases
+    from fem_offline.geometry.meshing import load_or_build_mesh
 
     scene = load_scene(args.scene)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -129,8 +129,8 @@ def _cases(args) -> int:
 
 
 def _mesh(args) -> None:
-    from .mesh import save
-    from .meshing import mesh_for_scene
+    from fem_offline.geometry.mesh import save
+    from fem_offline.geometry.meshing import mesh_for_scene
 
     if args.out.suffix not in (".npz", ".vtu", ".msh", ".xdmf"):
         raise ValueError(f"--out: use .npz, .vtu, .msh or .xdmf, got {args.out.suffix or 'no suffix'}")
@@ -142,7 +142,7 @@ def _mesh(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    from .newton import ConvergenceError
+    from fem_offline.fe.newton import ConvergenceError
 
     try:
         return {"solve": _solve, "sweep": _sweep, "cases": _cases, "mesh": _mesh}[args.command](args) or 0

@@ -27,12 +27,12 @@ from contracts import sweep as folder
 from contracts.envelope import Envelope
 from contracts.mesh import TetMesh
 
-from .continuation import PathState, solve_path
-from .linear import measured
-from .newton import ConvergenceError
-from .problem import Problem
-from .scene import Scene
-from .solve import solve_case
+from fem_offline.fe.continuation import PathState, solve_path
+from fem_offline.fe.linear import measured
+from fem_offline.fe.newton import ConvergenceError
+from fem_offline.fe.problem import Problem
+from fem_offline.scene import Scene
+from fem_offline.fe.solve import solve_case
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ def _solve(problem: Problem, d_mm: float, angle_deg: float, sweep: str | None):
 def solve_one(scene_json: str, mesh_path: str, out: str, index: int, d_mm: float, angle_deg: float,
               sweep: str | None = None) -> str | None:
     """Solve one case and write it; the error message if it did not converge."""
-    from .sweep import _check, _problem
+    from fem_offline.sweep import _check, _problem
 
     problem, t0 = _problem(scene_json, mesh_path), time.perf_counter()
     try:
@@ -136,7 +136,7 @@ def solve_cases(scene: Scene, mesh_path: Path, out: Path, n: int, seed: int, *, 
     same scene's, on the same mesh) each case starts from the sweep's field around it (module docstring)."""
     from tqdm import tqdm
 
-    from .sweep import single_threaded_pool
+    from fem_offline.sweep import single_threaded_pool
 
     if sweep is not None:
         check_sweep_for_starts(scene, mesh_path, sweep)

@@ -41,16 +41,16 @@ from contracts import sweep as folder
 from contracts.files import atomic_savez, sha256
 from contracts.mesh import TetMesh, read_mesh
 
-from .continuation import PathState, solve_path
-from .guide import is_mirrored
-from .labelmap import source_of
-from .linear import linear_modes, min_det_f, superpose
-from .meshing import kept_mesh
-from .mirror import mirror_map, reflect
-from .newton import ConvergenceError, Stats
-from .problem import build_problem
-from .scene import Scene, SceneError, parse_scene
-from .validity import DetFCheck, corners, min_det_f_bound, probe
+from fem_offline.fe.continuation import PathState, solve_path
+from fem_offline.fe.guide import is_mirrored
+from fem_offline.labelmap.io import source_of
+from fem_offline.fe.linear import linear_modes, min_det_f, superpose
+from fem_offline.geometry.meshing import kept_mesh
+from fem_offline.geometry.mirror import mirror_map, reflect
+from fem_offline.fe.newton import ConvergenceError, Stats
+from fem_offline.fe.problem import build_problem
+from fem_offline.scene import Scene, SceneError, parse_scene
+from fem_offline.fe.validity import DetFCheck, corners, min_det_f_bound, probe
 
 log = logging.getLogger(__name__)
 

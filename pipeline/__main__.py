@@ -29,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    from fem_offline.newton import ConvergenceError
+    from fem_offline.fe.newton import ConvergenceError
     from fem_offline.scene import SceneError
 
     from .build import FE_ESTIMATE, BuildOptions, build

@@ -31,8 +31,8 @@ VARIANTS_DIR = ROOT / "fem_offline" / "scenes" / "anatomy"
 
 def prepare(variant: str, folder: Path, spacing_mm: float) -> Path:
     """The variant's label map and label-map scene in `folder` (kept when already there); the scene's path."""
-    from fem_offline.labelmap import write_label_map
-    from fem_offline.labelmap_phantom import labelmap_scene, voxelise
+    from fem_offline.labelmap.io import write_label_map
+    from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
     from fem_offline.scene import load_scene
 
     scene_path = folder / "scene.toml"
@@ -71,10 +71,10 @@ def solved(folder: Path, scene_path: Path) -> bool:
 
 def row(variant: str, folder: Path, *, displacement_mm: float, angle_deg: float) -> dict:
     """The variant's anatomy, mesh and marker motion from the files in `folder`."""
-    from fem_offline.anatomy import describe
-    from fem_offline.guide import seat
-    from fem_offline.meshing import load_or_build_mesh
-    from fem_offline.regions import marker_names
+    from fem_offline.scene.anatomy import describe
+    from fem_offline.fe.guide import seat
+    from fem_offline.geometry.meshing import load_or_build_mesh
+    from fem_offline.geometry.regions import marker_names
     from fem_offline.scene import load_scene
 
     scene = load_scene(folder / "scene.toml")

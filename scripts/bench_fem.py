@@ -18,15 +18,15 @@ from statistics import median
 
 import numpy as np
 
-from fem_offline import elasticity as el
-from fem_offline.continuation import solve_path
-from fem_offline.linear import linear_modes, min_det_f, superpose
-from fem_offline.linsolve import AMG_MIN_DOFS
-from fem_offline.mesh import skfem_mesh
-from fem_offline.meshing import load_or_build_mesh
-from fem_offline.problem import build_problem
+from fem_offline.fe import elasticity as el
+from fem_offline.fe.continuation import solve_path
+from fem_offline.fe.linear import linear_modes, min_det_f, superpose
+from fem_offline.fe.linsolve import AMG_MIN_DOFS
+from fem_offline.geometry.mesh import skfem_mesh
+from fem_offline.geometry.meshing import load_or_build_mesh
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.validity import PROBE_INTORDER, points_per_tet, probe
+from fem_offline.fe.validity import PROBE_INTORDER, points_per_tet, probe
 
 
 def timed(fn, repeat=1):
@@ -43,7 +43,7 @@ def skfem_assembly_seconds(problem) -> float:
     from skfem import Basis, BilinearForm, ElementTetP2, ElementVector, asm
     from skfem.helpers import ddot, div, sym_grad
 
-    from fem_offline.materials import lame
+    from fem_offline.fe.materials import lame
 
     mesh = problem.mesh
     mu, lam, _ = lame(problem.scene, mesh)

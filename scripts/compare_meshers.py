@@ -18,7 +18,7 @@ import logging
 import sys
 from pathlib import Path
 
-from fem_offline.mesher_study import study
+from studies.meshers import study
 from fem_offline.scene import load_scene
 
 PACKAGE = {"cgal": "pygalmesh", "tetgen": "tetgen", "ftetwild": "pytetwild"}

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from contracts.mesh import read_mesh
-from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, run_study, scaled_scene, study_scene
-from fem_offline.problem import build_problem
-from fem_offline.validity import resampled
+from studies.convergence import HARD_CASES, NEAR_TIP_MM, run_study, scaled_scene, study_scene
+from fem_offline.fe.problem import build_problem
+from fem_offline.fe.validity import resampled
 
 MODELS = {"glued": (False, Path("runs/convergence")), "contact": (True, Path("runs/convergence_contact"))}
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from contracts import sweep as folder
-from fem_offline.convergence import HARD_CASES, scaled_scene, study_scene
+from studies.convergence import HARD_CASES, scaled_scene, study_scene
 from fem_offline.scene import parse_scene
 
 

@@ -8,7 +8,7 @@ Meshes the scene with every size multiplied by each scale (a constant ratio betw
 solves the hard cases on each, resumably (every converged load step is checkpointed under --out;
 rerun the same command to resume), and reports for the three finest levels the observed order,
 the Richardson estimate, the GCI and the monotonic/oscillatory kind of each quantity
-(fem_offline/convergence.py). Set MKL_NUM_THREADS (2 on this machine) for PARDISO.
+(studies/convergence.py). Set MKL_NUM_THREADS (2 on this machine) for PARDISO.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, analyse, run_study, study_scene
+from studies.convergence import HARD_CASES, NEAR_TIP_MM, analyse, run_study, study_scene
 from fem_offline.scene import VOLUMETRIC
 
 
@@ -131,7 +131,7 @@ def main() -> int:
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--name", help="the docs files' name (default: convergence[_contact][_VOLUMETRIC], as --out's folder)")
     ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG",
-                    help="the cases to solve on every level (default: the hard cases, fem_offline.convergence.HARD_CASES)")
+                    help="the cases to solve on every level (default: the hard cases, studies.convergence.HARD_CASES)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()

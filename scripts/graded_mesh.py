@@ -9,7 +9,7 @@ prostate (growing to MAX over 25 mm), around the guide tip, and on the prostate'
 together, these refine only near the prostate or the tip. Each mesh solves the hard cases (resumably, every
 load step checkpointed under --out) with the study's physics (default.toml, the tip in contact, the
 Taylor-Hood element, 0.5 mm load steps), and is judged as the study judges a level coarser than its
-three: per point, |u_mesh - u_fine| + GCI_fine (fem_offline.convergence.converged_estimate), at the
+three: per point, |u_mesh - u_fine| + GCI_fine (studies.convergence.converged_estimate), at the
 study's probe points (its 8 markers, 3 interior points and the 886 prostate-surface nodes of its scale-1
 mesh, so that the surface figure includes interpolation between the graded mesh's own nodes; and all its
 nodes, as the study's "every node") and at the graded mesh's own prostate-surface nodes and every node.
@@ -31,10 +31,10 @@ from pathlib import Path
 import numpy as np
 
 from contracts.mesh import read_mesh
-from fem_offline.convergence import (HARD_CASES, NEAR_TIP_MM, at_points, case_levels, converged_estimate, probe_points,
+from studies.convergence import (HARD_CASES, NEAR_TIP_MM, at_points, case_levels, converged_estimate, probe_points,
                                      solve_resumable, study_scene)
-from fem_offline.meshing import kept_mesh
-from fem_offline.problem import build_problem
+from fem_offline.geometry.meshing import kept_mesh
+from fem_offline.fe.problem import build_problem
 
 
 def sizes_arg(text: str) -> tuple[float, ...]:

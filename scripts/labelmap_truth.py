@@ -11,7 +11,7 @@ voxelised (scripts/make_labelmap.py's generator), meshed from its labels with th
 (fem_offline/scenes/patient.toml: the default's mesh sizes, physics and element) and solved at the
 grid-convergence study's hardest case (10 mm, beta = 0, from rest in 0.5 mm steps as the study). Its
 displacement is compared with the converged estimate of the Taylor-Hood study (`make fe-error-taylor-hood`;
-meshes and solutions read from --study; fem_offline.convergence.converged_estimate) at the study's probe
+meshes and solutions read from --study; studies.convergence.converged_estimate) at the study's probe
 points: the 8 markers, the 3 interior points and the scale-1 mesh's prostate-surface nodes. The error
 against the converged estimate is at most |u_labelmap - u_finest| + the finest level's GCI band, point by
 point; the same bound for the phantom's own gmsh mesh at the same sizes (the study's scale-1 level) is
@@ -38,8 +38,8 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
     """The default phantom voxelised at spacing_mm into `folder`, and its label-map scene (patient.toml's settings)."""
     import tomli_w
 
-    from fem_offline.labelmap import write_label_map
-    from fem_offline.labelmap_phantom import labelmap_scene, voxelise
+    from fem_offline.labelmap.io import write_label_map
+    from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
     from fem_offline.scene import load_scene
 
     root = Path(__file__).resolve().parents[1] / "fem_offline" / "scenes"
@@ -79,10 +79,10 @@ def main() -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
 
     from contracts.mesh import read_mesh, write_mesh
-    from fem_offline.convergence import (at_points, case_levels, converged_estimate, level_solution, probe_points,
+    from studies.convergence import (at_points, case_levels, converged_estimate, level_solution, probe_points,
                                          solve_resumable)
-    from fem_offline.meshing import load_or_build_mesh, mesh_for_scene
-    from fem_offline.problem import build_problem
+    from fem_offline.geometry.meshing import load_or_build_mesh, mesh_for_scene
+    from fem_offline.fe.problem import build_problem
     from fem_offline.scene import load_scene
 
     if not (args.study / "mesh_1.npz").exists():

@@ -7,7 +7,7 @@ the same tets; otherwise the scene is meshed), computes the linear model's min d
 its number of inverted tets at every (displacement, angle) of the scene's sweep grid, the exact
 first crossing of det F = 0 per angle, and the tissue under the guide tip along its axis. With
 --sweep it sets beside them the min det F the nonlinear snapshots recorded. The numbers come from
-fem_offline/validity.py; this script only lays them out. Takes seconds on the default mesh.
+fem_offline/fe/validity.py; this script only lays them out. Takes seconds on the default mesh.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ import numpy as np
 
 from contracts.mesh import read_mesh
 from contracts.sweep import MESH_FILE, read_manifest
-from fem_offline.meshing import mesh_for_scene
-from fem_offline.problem import build_problem
+from fem_offline.geometry.meshing import mesh_for_scene
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.validity import (PROBE_INTORDER, bounded_min_det_f, det_f_curves, linear_bound_table, points_per_tet,
+from fem_offline.fe.validity import (PROBE_INTORDER, bounded_min_det_f, det_f_curves, linear_bound_table, points_per_tet,
                                   probed_min_det_f, recorded_min_det_f, table_validity, tissue_along_axis, valid_up_to)
 
 
@@ -142,7 +142,7 @@ def markdown(s: dict) -> str:
         f"({len(s['displacements_mm'])} displacements every {step:g} mm × {len(s['angles_deg'])} angles "
         f"{s['angles_deg'][0]:g}..{s['angles_deg'][-1]:g}°). Command: `{s['command']}`.",
         "",
-        f"**The linear (small-strain) model with the glued guide patch (the superposable one; with the tip in contact the linear model is load-stepped, fem_offline/contact.py) stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
+        f"**The linear (small-strain) model with the glued guide patch (the superposable one; with the tip in contact the linear model is load-stepped, fem_offline/fe/contact.py) stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
         f"up to {lin['valid_up_to_mm']:g} mm of guide push.** Its first element turns inside out at "
         f"{lin['first_inversion_mm']:g} mm (bisection on det F's cubic in d); at {d_max:g} mm min det F is "
         f"{lin['min_det_f_at_max']:g} with {lin['n_inverted_tets_at_max'][0]}–{lin['n_inverted_tets_at_max'][1]} tets "

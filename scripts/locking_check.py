@@ -20,8 +20,8 @@ Also per level: the tet count and its ratio to the next (a geometric family refi
 more tets) and each tissue's median tet edge, to see whether every part of the mesh refines by r.
 
 --volumetric mean_dilatation solves the same levels with the volumetric term taken per tet
-(solver.volumetric, fem_offline/elasticity.py), a first remedy; --volumetric taylor_hood with a P1
-pressure per tissue (P2/P1, fem_offline/mixed.py), one that keeps the P2 element's order.
+(solver.volumetric, fem_offline/fe/elasticity.py), a first remedy; --volumetric taylor_hood with a P1
+pressure per tissue (P2/P1, fem_offline/fe/mixed.py), one that keeps the P2 element's order.
 
 Each (nu, level) result is written to --out as it finishes; a rerun resumes. The table and the
 GCI of the three finest levels per nu go to --json.
@@ -39,10 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from contracts.mesh import read_mesh, write_mesh
-from fem_offline.continuation import solve_path
-from fem_offline.convergence import at_points, probe_points, richardson, scaled_scene, study_scene
-from fem_offline.meshing import mesh_for_scene
-from fem_offline.problem import build_problem
+from fem_offline.fe.continuation import solve_path
+from studies.convergence import at_points, probe_points, richardson, scaled_scene, study_scene
+from fem_offline.geometry.meshing import mesh_for_scene
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import VOLUMETRIC, Scene
 
 from solver_tolerance import with_tolerances  # scripts/ is on sys.path when run as a script

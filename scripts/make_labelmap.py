@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from fem_offline.labelmap import write_label_map
-from fem_offline.labelmap_phantom import labelmap_scene, voxelise
+from fem_offline.labelmap.io import write_label_map
+from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
 from fem_offline.scene import SceneError, load_scene
 
 

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 from contracts.interpolate import interpolation_matrix
-from fem_offline.meshing import mesh_for_scene
-from fem_offline.problem import build_problem
+from fem_offline.geometry.meshing import mesh_for_scene
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.solve import solve_case
+from fem_offline.fe.solve import solve_case
 
 
 def _solve(scene, mesh, nonlinear: bool, d: float, beta: float, step_mm: float):

@@ -7,7 +7,7 @@ The grid-convergence study (scripts/convergence_study.py, here with solver.volum
 keeps each level's mesh and each case's solution under --study. Per case, the three finest levels that solved it
 (a case the finest level has not reached yet is judged on the three below), interpolated at
 the model mesh's own nodes, give at every node the fine level's answer u1 and its GCI band (Roache,
-one order per case from the mean |u|, fem_offline.convergence.field_gci). The model's answer m at
+one order per case from the mean |u|, studies.convergence.field_gci). The model's answer m at
 the same case (ONNX, float32, the whole mesh) is then at most
 
     e(x) = |m(x) - u1(x)| + GCI(x)
@@ -33,7 +33,7 @@ import numpy as np
 
 from contracts.mesh import read_mesh
 from contracts.model import onnx_session, read_model_folder
-from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, converged_estimate
+from studies.convergence import HARD_CASES, NEAR_TIP_MM, converged_estimate
 
 
 def compare(model: Path, study: Path, scales: list[float], cases) -> dict:

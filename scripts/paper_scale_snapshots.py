@@ -26,7 +26,7 @@ from contracts import sweep as folder
 from contracts.files import sha256
 from contracts.interpolate import PointLocator, interpolation_matrix
 from contracts.mesh import write_mesh
-from fem_offline.mesh import load
+from fem_offline.geometry.mesh import load
 
 
 def main() -> int:

@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from fem_offline.cases import solve_from
-from fem_offline.continuation import solve_path
-from fem_offline.mesh import load
-from fem_offline.problem import build_problem
+from fem_offline.fe.continuation import solve_path
+from fem_offline.geometry.mesh import load
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
 
 from solver_tolerance import with_tolerances  # scripts/ is on sys.path when run as a script

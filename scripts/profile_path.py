@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fem_offline.continuation import solve_path
-from fem_offline.convergence import scaled_scene, study_scene
-from fem_offline.meshing import kept_mesh
-from fem_offline.mesh import load
-from fem_offline.problem import build_problem
+from fem_offline.fe.continuation import solve_path
+from studies.convergence import scaled_scene, study_scene
+from fem_offline.geometry.meshing import kept_mesh
+from fem_offline.geometry.mesh import load
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import VOLUMETRIC
 
 
@@ -41,7 +41,7 @@ def main() -> None:
                     help="precondition with float64 PARDISO factors instead of float32 (newton.SINGLE_FACTORS)")
     args = ap.parse_args()
     if args.double_factors:
-        import fem_offline.newton as newton
+        import fem_offline.fe.newton as newton
 
         newton.SINGLE_FACTORS = False
     scene = study_scene(args.scene, volumetric=args.volumetric)

@@ -17,7 +17,7 @@ import argparse
 import numpy as np
 
 from contracts.mesh import read_mesh
-from fem_offline.convergence import HARD_CASES, NEAR_TIP_MM, at_points, probe_points, study_scene
+from studies.convergence import HARD_CASES, NEAR_TIP_MM, at_points, probe_points, study_scene
 
 
 def main() -> int:

@@ -117,7 +117,7 @@ def points(configs, levels, sweep_level, sweep, repeat: int) -> list[dict]:
 
 def tiny_sweeps(folder: Path) -> list[Path]:
     """The tiny scene's nonlinear 1 mm x 2 deg sweep at each MESH_CHECK_SCALES mesh size (resumable; built if missing)."""
-    from fem_offline.convergence import scaled_scene
+    from studies.convergence import scaled_scene
     from fem_offline.scene import load_scene
     from fem_offline.sweep import run_sweep
 
@@ -335,7 +335,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "## Left out of this study", "",
         "* **The linear model**: it is cut where it turns elements inside out (the glued linear sweep of default.toml's "
         "mesh from 5.5 mm, counting det F between the quadrature points, [linear_validity.md](linear_validity.md); "
-        "`fem_offline/validity.py`), so a linear model answers only part of the 0–10 mm envelope of these points, and is "
+        "`fem_offline/fe/validity.py`), so a linear model answers only part of the 0–10 mm envelope of these points, and is "
         "not a point on this front.",
         "* **Finer meshes than the study's finest** (the earlier linear rows up to paper scale): their error against "
         "the converged estimate is not known until the convergence study has them; FE solves at those sizes are not "

@@ -19,10 +19,10 @@ import numpy as np
 
 from contracts.mesh import read_mesh
 from contracts.model import onnx_session
-from fem_offline.problem import build_problem
-from fem_offline.regions import build_node_sets
+from fem_offline.fe.problem import build_problem
+from fem_offline.geometry.regions import build_node_sets
 from fem_offline.scene import load_scene
-from fem_offline.solve import solve_case
+from fem_offline.fe.solve import solve_case
 
 
 def main() -> None:

@@ -7,7 +7,7 @@ the region's points and the cases):
 
 e_surrogate(r, w): the float32 ONNX model against the FE of the mesh it was fitted on, held-out cases.
 e_FE(L): the FE on mesh level L against the best converged estimate of a grid-convergence study
-(scripts/convergence_study.py's JSON, fem_offline/convergence.py), at the study's probe points:
+(scripts/convergence_study.py's JSON, studies/convergence.py), at the study's probe points:
   the finest level     its GCI band, the best estimate's own uncertainty
   a coarser level      |u_L - u_finest| + the finest's band, at each point and case, then the max
 By the triangle inequality each sum bounds the distance to the converged answer wherever the band

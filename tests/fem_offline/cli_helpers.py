@@ -1,6 +1,5 @@
 """Run `python -m fem_offline` and write variants of tiny.toml for the CLI and sweep tests."""
 
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,10 +23,7 @@ def cli(*args, **kw):
 
 
 def scene_file(tmp_path, name, extra):
-    """tiny.toml with the sections named in `extra` replaced by `extra`'s."""
-    text = (SCENES / "tiny.toml").read_text()
-    for header in re.findall(r"^\[\w+\]$", extra, flags=re.M):
-        text = re.sub(rf"^{re.escape(header)}$.*?(?=^\[|\Z)", "", text, flags=re.M | re.S)
+    """tiny.toml with `extra`'s keys on top (it `extends` tiny.toml)."""
     path = tmp_path / f"{name}.toml"
-    path.write_text(text + "\n" + extra)
+    path.write_text(f'extends = "{SCENES / "tiny.toml"}"\n' + extra)
     return path

@@ -2,8 +2,8 @@ from pathlib import Path
 
 import pytest
 
-from fem_offline.meshing import mesh_for_scene
-from fem_offline.problem import build_problem
+from fem_offline.geometry.meshing import mesh_for_scene
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
 
 SCENES = Path(__file__).resolve().parents[2] / "fem_offline" / "scenes"
@@ -27,7 +27,7 @@ def tiny_problem(tiny_scene, tiny_mesh):
 @pytest.fixture(scope="session")
 def corner_path(tiny_problem):
     """beta = +10 deg, 2.5 ... 10 mm: the hard corner of the sweep."""
-    from fem_offline.continuation import solve_path
+    from fem_offline.fe.continuation import solve_path
 
     return list(solve_path(tiny_problem, [2.5, 5.0, 7.5, 10.0], 10.0))
 

@@ -3,11 +3,11 @@
 import numpy as np
 from skfem import Basis, ElementTetP2
 
-from fem_offline import elasticity as el
-from fem_offline import mixed
-from fem_offline.assembly import apply_matrix, assemble_matrix, assemble_vector, build_pattern
-from fem_offline.linsolve import Factor
-from fem_offline.materials import lame_kpa
+from fem_offline.fe import elasticity as el
+from fem_offline.fe import mixed
+from fem_offline.fe.assembly import apply_matrix, assemble_matrix, assemble_vector, build_pattern
+from fem_offline.fe.linsolve import Factor
+from fem_offline.fe.materials import lame_kpa
 
 
 def p2_data(mesh, intorder=2):
@@ -23,7 +23,7 @@ def lame_params(youngs, poisson, n):
 
 
 def taylor_hood_space(basis, tets, W, lam, pattern, tissue=None):
-    """The P1 pressure space (fem_offline/mixed.py) of a plain skfem P2 basis' mesh."""
+    """The P1 pressure space (fem_offline/fe/mixed.py) of a plain skfem P2 basis' mesh."""
     from skfem import ElementTetP1
 
     p1 = Basis(basis.mesh, ElementTetP1(), quadrature=basis.quadrature)
@@ -109,8 +109,8 @@ def newton_with_one_uphill_step(p, monkeypatch, spoil):
     """Newton from a perturbed equilibrium of `p` (1 mm at 4 deg, the guide already in place, so every step
     must pass Armijo), with the first correction for which spoil(cache.factor) holds turned uphill.
     Returns (u, g, stats, final factor, whether a step was spoiled)."""
-    import fem_offline.newton as nt
-    from fem_offline.solve import solve_case
+    import fem_offline.fe.newton as nt
+    from fem_offline.fe.solve import solve_case
 
     u_ref, _ = solve_case(p, 1.0, 4.0)
     g = u_ref.ravel().copy()

@@ -5,9 +5,9 @@ import pytest
 
 from contracts.sweep import read_cases
 from fem_offline.cases import draw_cases
-from fem_offline.problem import build_problem
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
-from fem_offline.solve import solve_case
+from fem_offline.fe.solve import solve_case
 
 from .cli_helpers import LINEAR, cli, scene_file
 
@@ -29,7 +29,7 @@ def test_cases_are_the_seeded_draw_solved_on_their_own_mesh_and_resume(tmp_path)
     problem = build_problem(scene, read_mesh(out / "mesh.npz"))
     expected, _ = solve_case(problem, *drawn[1])
     np.testing.assert_allclose(displacement[1], expected, atol=1e-10)
-    from fem_offline.validity import probe
+    from fem_offline.fe.validity import probe
 
     probed = probe(problem)  # each case's det F between the solver's points, as a sweep's snapshots record it
     for f, u in zip(files, displacement):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fem_offline.solve import solve_case
+from fem_offline.fe.solve import solve_case
 
 from .cli_helpers import cli, scene_file
 from .conftest import SCENES
@@ -20,7 +20,7 @@ def test_solve_writes_positions_displacement_and_stats(tmp_path, tiny_problem):
         expected, _ = solve_case(tiny_problem, 1.0, 3.0)
         np.testing.assert_allclose(z["displacement"], expected, atol=1e-9)
         # det F between the solver's points too (the 11 probe points per tet), as a sweep's snapshots record it
-        from fem_offline.validity import probe
+        from fem_offline.fe.validity import probe
 
         assert float(z["min_det_f_probe"]) == pytest.approx(probe(tiny_problem).min_jacobian(z["displacement"].ravel()),
                                                            rel=1e-9)
@@ -51,7 +51,7 @@ def test_bad_scene_gets_one_line_naming_the_field(tmp_path):
 
 
 def test_solve_reuses_a_saved_mesh_and_rejects_a_foreign_one(tmp_path, tiny_mesh):
-    from fem_offline.mesh import TetMesh, save
+    from fem_offline.geometry.mesh import TetMesh, save
 
     path = save(tiny_mesh, tmp_path / "mesh.vtu")
     out = tmp_path / "case.npz"

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from contracts.sweep import read_manifest
-from fem_offline.mesh import load as load_mesh
-from fem_offline.problem import build_problem
+from fem_offline.geometry.mesh import load as load_mesh
+from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene, parse_scene
-from fem_offline.solve import solve_case
-from fem_offline.mirror import mirror_map, reflect
+from fem_offline.fe.solve import solve_case
+from fem_offline.geometry.mirror import mirror_map, reflect
 from fem_offline.sweep import run_sweep
-from fem_offline.validity import probe
+from fem_offline.fe.validity import probe
 
 from .cli_helpers import LINEAR, MINI, ROOT, cli, scene_file
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from contracts.files import sha256
-from fem_offline.labelmap import write_label_map
-from fem_offline.labelmap_phantom import LABELS, labelmap_scene, voxelise
+from fem_offline.labelmap.io import write_label_map
+from fem_offline.labelmap.fixtures import LABELS, labelmap_scene, voxelise
 from fem_offline.scene import load_scene
 
 SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offline" / "scenes"
@@ -17,7 +17,7 @@ SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offlin
 
 # The tiny phantom, and the three anatomical variants of issue #14 at the tiny scene's sizes.
 BUILDS = ("tiny", "anatomy/small", "anatomy/medium", "anatomy/large")
-# CGAL sizes its tets by the scene's mesh sizes, TetGen by the voxels (labelmesh.py): the 1 mm map gives
+# CGAL sizes its tets by the scene's mesh sizes, TetGen by the voxels (fem_offline/labelmap/meshers.py): the 1 mm map gives
 # TetGen 86,509 tets and the build 8.5 min on a loaded 2-core machine; at 2 mm it gives 18,577 tets,
 # about CGAL's 19,642 at 1 mm. The first mesher installed builds.
 VOXEL_MM = {"cgal": 1.0, "tetgen": 2.0}
@@ -117,8 +117,8 @@ def test_served_mesh_is_the_scenes_anatomy(built):
     (within a voxel and the facet distance); prostate and rectal wall of the label map's volume
     (measured with CGAL at 1 mm: prostate -2.4 to -3.1 %, the faceting's inscribed loss; wall -0.3 to -0.8 %)."""
     from contracts.model import read_model_folder
-    from fem_offline.labelmap import read_label_map
-    from fem_offline.mesh_quality import tissue_volumes
+    from fem_offline.labelmap.io import read_label_map
+    from fem_offline.labelmap.quality import tissue_volumes
 
     folder, model, _, scene, voxel = built
     mesh = read_model_folder(folder / "models" / model.name).mesh

@@ -27,10 +27,10 @@ def test_default_model_error_is_what_a_fresh_fe_solve_gives():
     """Recomputed, not trusted: Table 3 sample 4 (1.5 mm, beta = -1 deg) solved now by fem_offline on the
     model's own mesh and scene (both stored in the folder); the shipped model's error against that
     solution equals the e_NN its manifest reports for the case."""
-    from fem_offline.problem import build_problem
-    from fem_offline.regions import build_node_sets
+    from fem_offline.fe.problem import build_problem
+    from fem_offline.geometry.regions import build_node_sets
     from fem_offline.scene import parse_scene
-    from fem_offline.solve import solve_case
+    from fem_offline.fe.solve import solve_case
 
     folder = read_model_folder(DEFAULT)
     scene = parse_scene(folder.manifest.scene.spec)
