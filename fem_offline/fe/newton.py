@@ -179,6 +179,17 @@ def _tangent(p: Problem, ev: Eval, exact_contact: bool = False) -> np.ndarray:
     return Ke
 
 
+def tangent_operator(p: Problem, u: np.ndarray) -> tuple[object, Eval]:
+    """The exact tangent at u on the free DOFs (the Taylor-Hood reduced Hessian as a mixed.Tangent), and residual(u)."""
+    ev = residual(p, u)
+    if ev.r is None:
+        raise ConvergenceError(f"det F = {ev.min_j:.3g} <= 0 at the state to linearise about")
+    K = assemble_matrix(p.pattern, _tangent(p, ev, exact_contact=True))
+    if p.taylor_hood:
+        return mixed.Tangent(K, _coupling(p, ev)[:, p.free].tocsr(), p.pressure), ev
+    return K, ev
+
+
 def _preconditioned_cg(K, rhs, factor, stats: Stats) -> tuple[np.ndarray | None, Stats]:
     """K du = rhs by CG to CG_RTOL preconditioned with `factor`; None when it needs more than factor.max_cg."""
     M = LinearOperator(K.shape, matvec=factor.precondition, dtype=np.float64)
