@@ -58,3 +58,13 @@ def test_default_model_states_an_end_to_end_bound_no_smaller_than_its_parts():
     for name, r in acc.regions.items():
         assert r.fe_discretisation_mm is not None and r.fe_discretisation_mm > 0, name
         assert r.end_to_end_mm >= r.surrogate_mm + r.fe_discretisation_mm - 1e-12, name
+
+
+def test_default_model_was_built_from_the_default_scenes_physics():
+    """models/default's scene states what fem_offline/scenes/default.toml states (its name may differ)."""
+    from fem_offline.scene import load_scene, parse_scene
+
+    built = parse_scene(read_model_folder(DEFAULT).manifest.scene.spec)
+    default = load_scene(DEFAULT.parents[1] / "fem_offline" / "scenes" / "default.toml")
+    assert built.content_sha256() == default.content_sha256()
+    assert default.solver.volumetric == "taylor_hood" and default.effects.guide_contact
