@@ -5,7 +5,10 @@
                                 validity: which snapshots turn an element inside out
     mesh.npz                    the P2 mesh (contracts.mesh)
     snapshots/aIII_dJJJ.npz     one case: displacement (n_nodes, 3) float64 mm, displacement_mm,
-                                angle_deg and the solver's record (CaseRecord fields)
+                                angle_deg and the solver's record (CaseRecord fields); for a scene
+                                with [materials], sensitivity_<tissue> (n_nodes, 3) float64 mm per
+                                unit ln E: S_i = du/d ln E_i at that case (contracts.materials),
+                                one per tissue the manifest's `materials` lists
 A solved off-grid case (`fem_offline solve` / `cases`) is the same .npz, plus reference_positions.
 
 A snapshot with det(I + grad u) <= 0 somewhere is not a deformation: an element is inside out. Each
@@ -37,6 +40,7 @@ from pydantic import BaseModel, ConfigDict
 
 from .envelope import Envelope
 from .files import atomic_savez, atomic_write_text, read_manifest_json, sha256
+from .materials import sensitivity_key
 from .mesh import TetMesh, read_mesh
 
 SWEEP_FORMAT = 4  # what this code writes
@@ -145,6 +149,7 @@ class SweepManifest(_Frozen):
     snapshots: list[SnapshotRecord] = []
     source: LabelMapSource | None = None  # label-map scenes only
     validity: Validity | None = None  # None: written before det(I + grad u) was checked (see sweep_validity)
+    materials: list[str] = []  # tissues whose sensitivity_<tissue> every snapshot holds (the scene's [materials])
 
 
 def write_case(path: str | Path, displacement: np.ndarray, *, displacement_mm: float, angle_deg: float,
@@ -164,6 +169,20 @@ def read_cases(files: list[Path]) -> tuple[np.ndarray, np.ndarray]:
             inputs.append((float(z["displacement_mm"]), float(z["angle_deg"])))
             disp.append(z["displacement"])
     return np.asarray(inputs), np.stack(disp)
+
+
+def read_sensitivities(files: list[Path], tissues: list[str]) -> dict[str, np.ndarray]:
+    """S_i (n, n_nodes, 3) per tissue of solved cases, in file order; KeyError naming a file that lacks one."""
+    out = {}
+    for name in tissues:
+        fields = []
+        for f in files:
+            with np.load(f) as z:
+                if sensitivity_key(name) not in z.files:
+                    raise KeyError(f"{f} holds no {sensitivity_key(name)}")
+                fields.append(z[sensitivity_key(name)])
+        out[name] = np.stack(fields)
+    return out
 
 
 def snapshot_record(folder: Path, name: str) -> SnapshotRecord:
@@ -224,6 +243,7 @@ class Sweep:
     mesh: TetMesh
     inputs: np.ndarray  # (n, 2): displacement_mm, angle_deg
     displacement: np.ndarray  # (n, n_nodes, 3) mm, float64
+    sensitivity: dict[str, np.ndarray] | None = None  # tissue -> S_i (n, n_nodes, 3) mm per unit ln E; None: no materials
 
 
 def read_sweep(folder: str | Path) -> Sweep:
@@ -240,7 +260,12 @@ def read_sweep(folder: str | Path) -> Sweep:
         if sha256(folder / name) != digest:
             raise ValueError(f"{folder}: {name} does not match its sha256 in {MANIFEST} (corrupt or replaced)")
     mesh = read_mesh(folder / manifest.mesh)
-    inputs, disp = read_cases([folder / r.file for r in manifest.snapshots])
+    files = [folder / r.file for r in manifest.snapshots]
+    inputs, disp = read_cases(files)
     if disp.shape[1] != len(mesh.nodes):
         raise ValueError(f"{folder}: snapshots have {disp.shape[1]} nodes, the mesh {len(mesh.nodes)}")
-    return Sweep(manifest, mesh, inputs, disp)
+    try:
+        sens = read_sensitivities(files, manifest.materials) if manifest.materials else None
+    except KeyError as exc:
+        raise ValueError(f"{folder}: the manifest lists materials {manifest.materials}, but {exc.args[0]}") from None
+    return Sweep(manifest, mesh, inputs, disp, sens)

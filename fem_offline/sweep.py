@@ -39,16 +39,18 @@ import numpy as np
 
 from contracts import sweep as folder
 from contracts.files import atomic_savez, sha256
+from contracts.materials import SENSITIVITY_PREFIX, sensitivity_key
 from contracts.mesh import TetMesh, read_mesh
 
 from fem_offline.fe.continuation import PathState, solve_path
 from fem_offline.fe.guide import is_mirrored
 from fem_offline.labelmap.io import source_of
-from fem_offline.fe.linear import linear_modes, min_det_f, superpose
+from fem_offline.fe.linear import LinearModes, linear_modes, min_det_f, superpose
 from fem_offline.geometry.meshing import kept_mesh
 from fem_offline.geometry.mirror import mirror_map, reflect
 from fem_offline.fe.newton import ConvergenceError, Stats
-from fem_offline.fe.problem import build_problem
+from fem_offline.fe.problem import Problem, build_problem
+from fem_offline.fe.sensitivity import Stiffened, sensitivities, stiffened
 from fem_offline.scene import Scene, SceneError, parse_scene
 from fem_offline.fe.validity import DetFCheck, corners, min_det_f_bound, probe
 
@@ -77,10 +79,13 @@ def grid(scene: Scene) -> list[list[Case]]:
     ]
 
 
-def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats, *, between: dict[str, float]) -> None:
-    """One snapshot: the solver's record and det F between its points (validity.DetFCheck; contracts.sweep)."""
+def write_snapshot(out: Path, case: Case, displacement: np.ndarray, stats: Stats, *, between: dict[str, float],
+                   sensitivity: dict[str, np.ndarray] | None = None) -> None:
+    """One snapshot: the solver's record, det F between its points (validity.DetFCheck; contracts.sweep) and,
+    for a scene with [materials], S_i = du/d ln E_i per material tissue (contracts.materials.sensitivity_key)."""
+    extra = {sensitivity_key(name): s for name, s in (sensitivity or {}).items()}
     folder.write_case(out / case.file, displacement, displacement_mm=case.displacement_mm, angle_deg=case.angle_deg,
-                      record=folder.CaseRecord(**stats.record(), **between))
+                      record=folder.CaseRecord(**stats.record(), **between), **extra)
 
 
 def prepare(scene: Scene, out: Path) -> TetMesh:
@@ -110,6 +115,22 @@ def _check(scene_json: str, mesh_path: str) -> DetFCheck:
     return DetFCheck.of(_problem(scene_json, mesh_path))
 
 
+@lru_cache(maxsize=2)
+def _stiffened(scene_json: str, mesh_path: str) -> Stiffened | None:
+    """The worker's doubled-E problems of the scene's material tissues (fe.sensitivity), or None without [materials]."""
+    problem = _problem(scene_json, mesh_path)
+    materials = problem.scene.materials
+    return stiffened(problem, tuple(materials)) if materials else None
+
+
+def path_sensitivities(models: Stiffened | None, problem: Problem, case: Case, state: PathState) -> dict | None:
+    """S_i (n_nodes, 3) per material tissue at a converged path state (its contact multipliers included)."""
+    if models is None:
+        return None
+    loaded = problem.at_guide(case.displacement_mm, case.angle_deg, state.multipliers)
+    return sensitivities(models, loaded, state.u)
+
+
 def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[Case]]:
     """Start after the last contiguous finished snapshot of the path, warm from its displacement."""
     done = 0
@@ -132,14 +153,15 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     out = Path(out)
     problem = _problem(scene_json, str(out / folder.MESH_FILE))
     check = _check(scene_json, str(out / folder.MESH_FILE))
+    models = _stiffened(scene_json, str(out / folder.MESH_FILE))
     state, todo = _resume_state(out, path)
     if not todo:
         return {"written": 0}
     written, parent = 0, os.getppid()
     try:
-        steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state)
-        for case, (_, u, stats) in zip(todo, steps):
-            write_snapshot(out, case, u, stats, between=check(u))
+        steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state, with_state=True)
+        for case, (_, u, stats, reached) in zip(todo, steps):
+            write_snapshot(out, case, u, stats, between=check(u), sensitivity=path_sensitivities(models, problem, case, reached))
             written += 1
             if os.getppid() != parent:  # the sweep was killed: stop after this (saved) snapshot
                 return {"written": written, "error": "sweep process ended"}
@@ -166,13 +188,27 @@ def _write_linear(scene: Scene, mesh: TetMesh, out: Path, pending: list[Case], p
         cases = [c for c in pending if c.angle_deg == angle]
         d = [c.displacement_mm for c in cases]
         det.update(zip(cases, zip(min_det_f(problem, modes, d, angle), min_det_f(probed, modes, d, angle))))
+    sens_modes = linear_sensitivity_modes(problem, modes)
     per = (time.perf_counter() - t0) / max(len(pending), 1)
     for case in pending:
         u = superpose(modes, case.displacement_mm, case.angle_deg)
         at_qp, at_probe = det[case]
+        sens = {n: superpose(m, case.displacement_mm, case.angle_deg) for n, m in sens_modes.items()}
         write_snapshot(out, case, u, Stats(iterations=1, seconds=per, min_det_f=float(at_qp)),
-                       between={"min_det_f_probe": float(at_probe), "min_det_f_bound": min_det_f_bound(at_corners, u)})
+                       between={"min_det_f_probe": float(at_probe), "min_det_f_bound": min_det_f_bound(at_corners, u)},
+                       sensitivity=sens or None)
         progress.update(1)
+
+
+def linear_sensitivity_modes(problem: Problem, modes: LinearModes) -> dict[str, LinearModes]:
+    """Per material tissue, S_i of the three linear fields: S_i is linear in u for the linear model (K S_i =
+    -f_i(u), f_i linear in u), so S_i(d, beta) superposes like u (linear.superpose). {} without [materials]."""
+    materials = problem.scene.materials
+    if not materials:
+        return {}
+    models = stiffened(problem, tuple(materials))
+    per_field = [sensitivities(models, problem, field) for field in modes]  # u0, u_axis, u_perp
+    return {n: LinearModes(*(s[n].ravel() for s in per_field)) for n in materials}
 
 
 def _mirror_pairs(scene: Scene, mesh: TetMesh, paths: list[list[Case]]):
@@ -196,7 +232,8 @@ def _write_mirrored(out: Path, paths, twins: dict[int, int], image: np.ndarray) 
             if target.exists() or not source.exists():
                 continue
             with np.load(source) as z:
-                extra = {k: z[k] for k in z.files if k not in ("displacement", "angle_deg", "displacement_mm")}
+                extra = {k: reflect(z[k], image) if k.startswith(SENSITIVITY_PREFIX) else z[k]  # S mirrors as u
+                         for k in z.files if k not in ("displacement", "angle_deg", "displacement_mm")}
                 atomic_savez(target, displacement=reflect(z["displacement"], image), displacement_mm=case.displacement_mm,
                              angle_deg=case.angle_deg, mirrored_from=src.file, **extra)
             written += 1
@@ -285,6 +322,6 @@ def write_manifest(scene: Scene, mesh: TetMesh, out: Path, paths, *, seconds: fl
         n_expected=sum(len(p) for p in paths), n_done=len(rows), n_mirrored=sum(r.mirrored_from is not None for r in rows),
         wall_seconds_this_run=seconds, errors=errors, snapshots=rows,
         source=source_of(scene.label_map) if scene.label_map is not None else None,
-        validity=folder.validity_of(grid_, rows))
+        validity=folder.validity_of(grid_, rows), materials=list(scene.materials or {}))
     folder.write_manifest(out, manifest)
     return manifest

@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.guide import push_direction
+from contracts.materials import youngs_from_shear_wave_kpa
 
 from fem_offline.scene.anatomy import problems as anatomy_problems
 from fem_offline.scene.anatomy import tip_problem
@@ -52,9 +53,24 @@ class Tissue(_Strict):
             shear_wave_speed_m_s=self.shear_wave_speed_m_s, density_kg_m3=self.density_kg_m3, poisson=self.poisson)
 
 
-def youngs_from_shear_wave_kpa(*, shear_wave_speed_m_s: float, density_kg_m3: float, poisson: float) -> float:
-    """E = 2 (1 + nu) v_s^2 rho (paper eq. 1), in kPa: v_s in m/s, rho in kg/m^3 give Pa."""
-    return 2.0 * (1.0 + poisson) * shear_wave_speed_m_s**2 * density_kg_m3 / 1e3
+class MaterialInput(_Strict):
+    """A tissue whose stiffness the model takes as input: the range it answers for and the default uncertainty.
+
+    The nominal E (theta = 0) is the tissue's own stiffness in [tissues]; it must lie inside the range.
+    """
+
+    youngs_kpa_range: tuple[Positive, Positive]
+    std_percent: Annotated[float, Field(gt=0, le=100)]  # default 1-sigma measurement uncertainty of E, %
+    source: str = ""  # where the range and the uncertainty come from (docs/materials.md)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> MaterialInput:
+        if not self.youngs_kpa_range[0] < self.youngs_kpa_range[1]:
+            raise ValueError(f"youngs_kpa_range: lower bound {self.youngs_kpa_range[0]} must be below the upper")
+        return self
+
+
+MaterialInputs = dict[str, MaterialInput]  # soft tissue -> its input, in the model's input order
 
 
 class Phantom(_Strict):
@@ -263,13 +279,18 @@ class Scene(_Strict):
     sweep: Sweep = Sweep()
     mesh: MeshSize = MeshSize()
     solver: Solver = Solver()
+    # Tissue stiffnesses as model inputs (the sweep then stores du/d ln E per tissue); None: no material inputs
+    materials: MaterialInputs | None = None
 
     @model_validator(mode="before")
     @classmethod
     def _file_geometry_defaults(cls, data):
-        """A mesh-file or label-map scene has no phantom; a label map's guide tip snaps to the lumen surface by default."""
+        """A mesh-file or label-map scene has no phantom; a label map's guide tip snaps to the lumen surface by default;
+        `materials = false` drops the material inputs a scene `extends` (TOML has no null)."""
         if not isinstance(data, dict):
             return data
+        if data.get("materials") is False:  # `materials = false`: a variant without its base's material inputs
+            data = {**data, "materials": None}
         if data.get("mesh_file") is not None or data.get("label_map") is not None:
             data = {**data, "phantom": data.get("phantom")}
         if data.get("label_map") is not None:
@@ -300,7 +321,21 @@ class Scene(_Strict):
             problem = tip_problem(self.phantom, self.guide)
             if problem:
                 raise ValueError(problem)
+        self._check_materials()
         return self
+
+    def _check_materials(self) -> None:
+        """Each material input names a soft tissue of the scene whose E lies inside its range."""
+        for name, m in (self.materials or {}).items():
+            tissue = self.tissues.get(name)
+            if tissue is None:
+                raise ValueError(f"materials.{name}: not a tissue of [tissues]")
+            if tissue.bone:
+                raise ValueError(f"materials.{name}: a bone is held fixed; its stiffness moves nothing")
+            lo, hi = m.youngs_kpa_range
+            if not lo <= tissue.youngs <= hi:
+                raise ValueError(f"materials.{name}.youngs_kpa_range: [{lo:g}, {hi:g}] kPa must hold the tissue's E "
+                                 f"{tissue.youngs:g} kPa (the nominal)")
 
     def sha256(self) -> str:
         """Hash of the validated scene (canonical JSON), recorded with every artifact."""
@@ -329,5 +364,6 @@ class Scene(_Strict):
 _LATER_FIELDS = {(None, "label_map"): None, ("guide", "snap_mm"): None, ("guide", "snap_to"): "node",
                  ("guide", "tip_radius_mm"): 6.0, ("guide", "contact_stiffness_kpa_mm"): 3e4, ("guide", "contact_tol_mm"): 0.005,
                  ("effects", "guide_contact"): False, ("label_map", "facet_distance_voxels"): 0.5,
-                 ("solver", "volumetric"): "pointwise", ("mesh", "surface_near_tip_mm"): None}
+                 ("solver", "volumetric"): "pointwise", ("mesh", "surface_near_tip_mm"): None,
+                 (None, "materials"): None}
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")

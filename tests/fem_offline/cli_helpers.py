@@ -16,6 +16,12 @@ angle_min_deg = -10.0
 angle_max_deg = 10.0
 angle_step_deg = 20.0
 """
+# Every soft tissue's stiffness as an input (tiny.toml has none): the sweep stores du/d ln E per tissue
+MATERIALS = "".join(f"""[materials.{name}]
+youngs_kpa_range = [{lo}, {hi}]
+std_percent = 20.0
+""" for name, lo, hi in (("prostate", 50.0, 85.0), ("rectal_wall", 140.0, 215.0), ("adipose", 8.5, 13.5),
+                         ("bladder", 80.0, 125.0)))
 
 
 def cli(*args, **kw):

@@ -18,7 +18,7 @@ from fem_offline.geometry.mirror import mirror_map, reflect
 from fem_offline.sweep import run_sweep
 from fem_offline.fe.validity import probe
 
-from .cli_helpers import LINEAR, MINI, ROOT, cli, scene_file
+from .cli_helpers import LINEAR, MATERIALS, MINI, ROOT, cli, scene_file
 
 # Solve the scene's first path as a sweep worker does, and SIGKILL the process as soon as its first
 # snapshot is on disk: a kill -9 at a known point, not at whatever moment a poll notices a file.
@@ -139,3 +139,45 @@ def test_nonlinear_snapshots_record_det_f_at_the_probe_points(mirrored_sweep):
         assert row.min_det_f_probe == pytest.approx(probed.min_jacobian(reflect(u, image).ravel()), rel=1e-9)
         assert 0 < row.min_det_f_probe < 1 and row.min_det_f == pytest.approx(problem.min_jacobian(u.ravel()), rel=1e-6)
     assert manifest.validity.n_unprobed == 0 and manifest.validity.n_inverted == 0
+
+
+def test_linear_material_sweep_stores_each_tissues_sensitivity(tmp_path):
+    """Superposed S_i(d, beta) = the sensitivity solve at that snapshot's u (S_i is linear in u for the linear
+    model), for every tissue the manifest lists, and they sum to zero (only stiffness ratios matter)."""
+    from contracts.materials import sensitivity_key
+    from contracts.mesh import read_mesh
+    from fem_offline.fe.sensitivity import sensitivities, stiffened
+
+    scene = load_scene(scene_file(tmp_path, "materials", LINEAR + MINI + MATERIALS))
+    manifest = run_sweep(scene, tmp_path / "sweep")
+    assert manifest.materials == ["prostate", "rectal_wall", "adipose", "bladder"] and manifest.n_done == 4
+    problem = build_problem(scene, read_mesh(tmp_path / "sweep" / "mesh.npz"))
+    models = stiffened(problem, tuple(manifest.materials))
+    with np.load(tmp_path / "sweep" / manifest.snapshots[-1].file) as z:
+        u = z["displacement"]
+        stored = {n: z[sensitivity_key(n)] for n in manifest.materials}
+    direct = sensitivities(models, problem, u.ravel())
+    scale = max(np.abs(s).max() for s in direct.values())
+    assert scale > 0.01 * np.abs(u).max()
+    for name in manifest.materials:
+        np.testing.assert_allclose(stored[name], direct[name], atol=1e-9 * scale)
+    assert np.abs(sum(stored.values())).max() < 1e-6 * scale
+
+
+def test_mirrored_snapshots_mirror_the_sensitivities(tmp_path):
+    """Nonlinear, -10 deg reflected from +10: each S_i equals the sensitivity solve at a direct -10 deg solve."""
+    from contracts.materials import sensitivity_key
+    from fem_offline.fe.continuation import solve_path
+    from fem_offline.fe.sensitivity import sensitivities, stiffened
+
+    scene = load_scene(scene_file(tmp_path, "materials", MINI + MATERIALS))
+    manifest = run_sweep(scene, tmp_path / "sweep")
+    assert manifest.n_mirrored == 2 and not manifest.errors
+    problem = build_problem(scene, load_mesh(tmp_path / "sweep" / "mesh.npz"))
+    (d, _, _, state), = list(solve_path(problem, [1.0, 2.0], -10.0, with_state=True))[-1:]
+    direct = sensitivities(stiffened(problem, ("prostate", "adipose")), problem.at_guide(d, -10.0, state.multipliers),
+                           state.u)
+    with np.load(tmp_path / "sweep" / "snapshots" / "a000_d001.npz") as z:  # -10 deg, 2 mm, reflected
+        assert "mirrored_from" in z.files
+        for name, s in direct.items():
+            np.testing.assert_allclose(z[sensitivity_key(name)], s, atol=1e-5 * np.abs(s).max())

@@ -114,3 +114,26 @@ def test_patient_base_scene_gives_a_label_map_scene_the_default_physics_and_a_4_
     assert len(scene.sweep.angles_deg) == 6 and np.allclose(scene.sweep.angles_deg, np.arange(-10, 11, 4))
     assert np.allclose(scene.sweep.displacements_mm, np.arange(0.5, 10.01, 0.5))
     assert scene.solver.max_step_mm == 0.5 and scene.solver.volumetric == "pointwise"
+
+
+def test_default_scene_takes_the_four_soft_tissues_stiffnesses_as_inputs():
+    """Each range holds the tissue's E (the nominal); a variant drops them with `materials = false`, and a scene
+    without them keeps the hash it had before the section existed (tiny.toml's, pinned here)."""
+    default, tiny = load_scene(SCENES / "default.toml"), load_scene(SCENES / "tiny.toml")
+    assert list(default.materials) == ["prostate", "rectal_wall", "adipose", "bladder"]
+    for name, m in default.materials.items():
+        assert m.youngs_kpa_range[0] < default.tissues[name].youngs < m.youngs_kpa_range[1], name
+        assert m.source and 0 < m.std_percent <= 100
+    assert tiny.materials is None
+    assert tiny.sha256().startswith("ecc76da4a399")
+
+
+@pytest.mark.parametrize("materials, field", [
+    ({"prostate": {"youngs_kpa_range": [70.0, 90.0], "std_percent": 20.0}}, "materials.prostate.youngs_kpa_range"),
+    ({"spine": {"youngs_kpa_range": [1000.0, 3000.0], "std_percent": 20.0}}, "materials.spine"),
+    ({"liver": {"youngs_kpa_range": [1.0, 3.0], "std_percent": 20.0}}, "materials.liver"),
+])
+def test_a_material_input_outside_its_tissue_is_refused_by_name(materials, field):
+    """The nominal E outside the range, a bone (held fixed), a tissue the scene does not have."""
+    with pytest.raises(SceneError, match=field.replace(".", r"\.")):
+        load_scene(SCENES / "tiny.toml", materials=materials)
