@@ -26,7 +26,8 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m service", description=__doc__)
     for name, field in Settings.model_fields.items():
-        shown = "none" if field.repr is False or field.default in (None, []) else field.default
+        shown = ("from the usable cores" if field.default_factory is not None else
+                 "none" if field.repr is False or field.default in (None, []) else field.default)
         ap.add_argument(f"--{name.replace('_', '-')}", dest=name, help=f"{field.description or name} "
                         f"(env DEFORM_{name.upper()}, default {shown})")
     args = {k: v for k, v in vars(ap.parse_args(argv)).items() if v is not None}

@@ -20,8 +20,8 @@ from .info import model_info
 from .limits import PendingLimit, RateLimit
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, read_model_folder
-from .predict import predict_batch
-from .routes import HEALTH_PATHS, predict_router, router
+from .predict import cheap_keys, predict_batch
+from .routes import HEALTH_PATHS, Serving, predict_router, router
 from .schemas import field_hints, predict_request_model
 from .settings import Settings
 from .viewer import viewer_router
@@ -45,16 +45,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.batching:
             app.state.batcher = Batcher(partial(predict_batch, predictor), max_batch=settings.batch_max_size,
                                         max_delay_s=settings.batch_max_delay_ms / 1e3, max_queue=settings.max_pending,
+                                        lanes=settings.batch_lanes, preferred=settings.batch_preferred_sizes,
                                         observe=app.state.metrics.observe_batch)
             app.state.batcher.start()
         app.state.predictor = predictor
+        inline = cheap_keys(predictor, settings.inline_max_ms)
+        app.state.serving = Serving(predictor, app.state.batcher, info, inline)
+        log.info("decoded on the event loop when idle: %s", ", ".join(sorted(inline)) or "nothing")
         log.info("model %s loaded: %d nodes", info.name, len(folder.nodes))
         if igtl is not None:
             igtl.start(app.state.predictor)
         yield
         if igtl is not None:
             igtl.stop()
-        app.state.predictor = None
+        app.state.predictor = app.state.serving = None
         if app.state.batcher is not None:
             await app.state.batcher.stop()
             app.state.batcher = None
@@ -68,7 +72,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,  # add_offline_docs serves /docs and /redoc without a CDN
         redoc_url=None,
     )
-    app.state.predictor = app.state.batcher = None
+    app.state.predictor = app.state.batcher = app.state.serving = None
     app.state.info = info
     app.state.metrics = Metrics()
     app.state.field_hints = field_hints(info, settings.max_points)

@@ -8,6 +8,7 @@ import time
 from .auth import CLIENT
 from .http import error_reply
 
+IN_FLIGHT = "predict_in_flight"  # request.state key: /predict requests in the service when this one arrived
 MAX_CLIENTS = 10_000  # buckets kept; beyond this, the full (idle) ones are dropped
 
 
@@ -71,6 +72,7 @@ class PendingLimit:
                                        "already; retry shortly", "overloaded")], headers={"Retry-After": "1"})
             return await reply(scope, receive, send)
         self.pending += 1
+        scope.setdefault("state", {})[IN_FLIGHT] = self.pending  # this one included: 1 means it is alone
         try:
             await self.app(scope, receive, send)
         finally:

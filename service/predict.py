@@ -1,13 +1,14 @@
 """Predictions as arrays, alone or batched: no HTTP here (the routes turn them into replies).
 
 A request becomes a `Query` (which nodes to decode, and how to turn their displacement into the
-answer); queries with the same node set decode together in one onnxruntime call, so the basis is
-read once per batch instead of once per request.
+answer); full-mesh queries decode together in one onnxruntime call, so the basis is read once per
+batch instead of once per request. Every answer is the same bytes whether batched or not.
 """
 
 from __future__ import annotations
 
 import hashlib
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,7 +85,34 @@ def predict_batch(predictor: Predictor, queries: list[Query]) -> list[Prediction
     out: list[Prediction | None] = [None] * len(queries)
     for members in groups.values():
         first = queries[members[0]]
-        u = predictor.decode(np.array([queries[i].guide for i in members]), first.nodes)  # (batch, n, 3)
-        for row, i in enumerate(members):
-            out[i] = finish(predictor, queries[i], u[row])
+        if first.nodes is None:  # the full mesh: one pass over the basis for the whole batch
+            u = predictor.decode(np.array([queries[i].guide for i in members]))  # (batch, n, 3)
+            for row, i in enumerate(members):
+                out[i] = finish(predictor, queries[i], u[row])
+            continue
+        # A node subset one guide at a time: its cost is the O(k * rank) gather, not the basis, and
+        # onnxruntime's Gemm over a gathered (not prepacked) basis rounds the last bit differently
+        # for one row than for several; so the reply is the same bytes as without batching.
+        for i in members:
+            out[i] = finish(predictor, queries[i], predictor.decode(np.array([queries[i].guide]), first.nodes)[0])
     return out
+
+
+def decode_ms(predictor: Predictor, nodes: np.ndarray | None, *, repeats: int = 5) -> float:
+    """Median wall time of one single-guide decode of `nodes` (all when None), ms."""
+    guide, times = np.array([[1.0, 0.0]]), []
+    predictor.decode(guide, nodes)  # the first call of a shape allocates
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        predictor.decode(guide, nodes)
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times))
+
+
+def cheap_keys(predictor: Predictor, budget_ms: float) -> frozenset[str]:
+    """The batching keys (all nodes, each region) whose decode, measured now, takes at most `budget_ms`:
+    the ones worth decoding on the event loop rather than through a thread."""
+    if budget_ms <= 0:
+        return frozenset()
+    sets = {ALL_NODES: None, **{f"region:{name}": ids for name, ids in predictor.folder.regions.items()}}
+    return frozenset(key for key, nodes in sets.items() if decode_ms(predictor, nodes) <= budget_ms)

@@ -1,6 +1,7 @@
 """The endpoints: thin handlers over `predict` and the app's state, reached through typed dependencies."""
 
 # No `from __future__ import annotations`: FastAPI must see the request model built in predict_router.
+from dataclasses import dataclass
 from typing import Annotated
 
 import numpy as np
@@ -10,11 +11,13 @@ from starlette.concurrency import run_in_threadpool
 
 from .batching import Batcher, QueueFull
 from .export import EXPORT_CONTENT, ExportFormat, export_response
-from .http import BINARY, JsonBodyRoute, OrjsonResponse, RequestProblem, reply_format
+from .http import BINARY, JsonBodyRoute, RequestProblem, reply_format
 from .info import ModelInfo
+from .limits import IN_FLIGHT
 from .metrics import FORMAT, TARGET, Metrics
 from .model import Predictor
-from .predict import Prediction, plan, predict
+from .predict import Prediction, finish, plan, predict
+from .replies import SMALL_JSON_ROWS, ChunkedResponse, binary_reply, json_chunks, rows_of
 from .schemas import ErrorReply, PredictReply, PredictRequestBase
 
 
@@ -27,6 +30,23 @@ async def get_predictor(request: Request) -> Predictor:
 
 async def get_batcher(request: Request) -> Batcher | None:
     return request.app.state.batcher
+
+
+@dataclass(frozen=True)
+class Serving:
+    """What POST /predict needs, in one dependency (each dependency costs FastAPI some microseconds a request)."""
+
+    predictor: Predictor
+    batcher: Batcher | None  # None: batching is off
+    info: ModelInfo
+    inline: frozenset[str]  # batching keys decoded on the event loop when nothing else is decoding (predict.cheap_keys)
+
+
+async def get_serving(request: Request) -> Serving:
+    serving = request.app.state.serving
+    if serving is None:
+        raise HTTPException(503, detail="model not loaded")
+    return serving
 
 
 async def get_info(request: Request) -> ModelInfo:
@@ -42,6 +62,7 @@ PredictorDep = Annotated[Predictor, Depends(get_predictor)]
 BatcherDep = Annotated[Batcher | None, Depends(get_batcher)]  # None: batching is off
 InfoDep = Annotated[ModelInfo, Depends(get_info)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+ServingDep = Annotated[Serving, Depends(get_serving)]
 
 HEALTH_PATHS = frozenset({"/healthz", "/readyz"})  # open even when auth is on, never rate-limited
 
@@ -85,19 +106,52 @@ def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model
 
 
 def reply(request: PredictRequestBase, prediction: Prediction, *, fmt: str, model: str) -> Response:
-    """A prediction as JSON, or as raw little-endian float32 positions (count x 3)."""
-    positions = prediction.positions
+    """A prediction as JSON, or as raw little-endian float32 positions (count x 3); large JSON in pieces
+    (service/replies.py): call it off the event loop unless `small_reply` says it is cheap."""
     if fmt == "binary":
-        # float32 arrays are little-endian on every platform onnxruntime ships for; no copy to bytes
-        return Response(memoryview(np.ascontiguousarray(positions, dtype="<f4")), media_type=BINARY, headers={
-            "X-Count": str(len(positions)), "X-Layout": "float32 little-endian, count x 3 (x, y, z) mm, deformed positions"})
-    content = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
-               "region": prediction.region, "count": len(positions), "positions": positions}
+        return binary_reply(prediction.positions)
+    scalars = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
+               "region": prediction.region, "count": len(prediction.positions)}
+    return ChunkedResponse(json_chunks(scalars, reply_arrays(prediction)))
+
+
+def reply_arrays(prediction: Prediction) -> dict[str, np.ndarray]:
+    arrays = {"positions": prediction.positions}
     if prediction.displacements is not None:
-        content["displacements"] = prediction.displacements
+        arrays["displacements"] = prediction.displacements
     if prediction.node_ids is not None:
-        content["node_ids"] = prediction.node_ids
-    return OrjsonResponse(content)
+        arrays["node_ids"] = prediction.node_ids
+    return arrays
+
+
+def small_reply(prediction: Prediction, fmt: str) -> bool:
+    """Whether the reply costs so little to build that a thread hop would cost more: binary (no copy, no work)
+    or JSON of a few rows."""
+    return fmt == "binary" or rows_of(reply_arrays(prediction)) <= SMALL_JSON_ROWS
+
+
+async def respond(serving: Serving, body: PredictRequestBase, fmt: str, *, alone: bool) -> Response:
+    """Decode and reply. A cheap decode (`serving.inline`) of a request that arrived `alone` (no other /predict
+    in the service) runs right here on the event loop: a thread hop would cost more than it, and under load
+    the batcher's lanes decode on other cores while the loop does HTTP. Everything else (locating points, decoding, large JSON)
+    runs off the event loop, in the batcher's lanes or the thread pool, so it stays free for /healthz and
+    other requests (onnxruntime and numpy release the GIL; replies.py offers it back while writing JSON)."""
+    predictor, batcher, model = serving.predictor, serving.batcher, serving.info.name
+    query = plan(predictor, body) if body.points is None else None
+    if query is not None and alone and query.key in serving.inline and (batcher is None or batcher.idle):
+        prediction = finish(predictor, query, predictor.decode(np.array([query.guide]), query.nodes)[0])
+    elif batcher is None:
+        return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=model)
+    else:
+        query = query or await run_in_threadpool(plan, predictor, body)
+        try:
+            prediction = await batcher.submit(query)  # decoded with whatever else waits for the same nodes
+        except QueueFull as exc:
+            raise RequestProblem(503, field="request", type="overloaded", message=f"overloaded: {exc}",
+                                 headers={"Retry-After": "1"}) from None
+    if small_reply(prediction, fmt):
+        return reply(body, prediction, fmt=fmt, model=model)
+    return await run_in_threadpool(reply, body, prediction, fmt=fmt, model=model)
 
 
 PREDICT_RESPONSES = {
@@ -126,8 +180,7 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
     predict_routes = APIRouter(route_class=JsonBodyRoute)
 
     @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
-    async def predict_endpoint(body: PredictRequest, request: Request, predictor: PredictorDep,  # type: ignore[valid-type]
-                               batcher: BatcherDep, info: InfoDep,
+    async def predict_endpoint(body: PredictRequest, request: Request, serving: ServingDep,  # type: ignore[valid-type]
                                export: Annotated[ExportFormat | None, Query(alias="format", description=(
                                    "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file; "
                                    "with region or points, 422 (format_conflict)"))] = None):
@@ -138,26 +191,14 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
         With `?format=vtu|ply|glb`, the whole deformed mesh as a file (service/export.py).
         """
         target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
-        setattr(request.state, TARGET, target)  # for the metrics middleware, which counts the reply
+        state = request.scope.setdefault("state", {})  # for the metrics middleware, which counts the reply
+        state[TARGET] = target
         if export is not None:
-            setattr(request.state, FORMAT, export.value)
+            state[FORMAT] = export.value
             region = body.region.value if body.region is not None else None
-            return await run_in_threadpool(export_response, predictor, displacement_mm=body.displacement_mm,
+            return await run_in_threadpool(export_response, serving.predictor, displacement_mm=body.displacement_mm,
                                            angle_deg=body.angle_deg, fmt=export, region=region, points=body.points)
-        fmt = reply_format(request.headers.get("accept"))
-        setattr(request.state, FORMAT, fmt)
-        # Decoding, locating points and serialising run off the event loop (the batcher's decode thread,
-        # the thread pool): it stays free for /healthz and other requests (onnxruntime and numpy release the GIL).
-        if batcher is None:
-            return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=info.name)
-        query = plan(predictor, body) if body.points is None else await run_in_threadpool(plan, predictor, body)
-        try:
-            prediction = await batcher.submit(query)  # decoded with whatever else waits for the same nodes
-        except QueueFull as exc:
-            raise RequestProblem(503, field="request", type="overloaded", message=f"overloaded: {exc}",
-                                 headers={"Retry-After": "1"}) from None
-        if fmt == "binary":
-            return reply(body, prediction, fmt=fmt, model=info.name)  # no copy, no work: not worth a thread hop
-        return await run_in_threadpool(reply, body, prediction, fmt=fmt, model=info.name)
+        fmt = state[FORMAT] = reply_format(request.headers.get("accept"))
+        return await respond(serving, body, fmt, alone=state.get(IN_FLIGHT, 1) <= 1)
 
     return predict_routes

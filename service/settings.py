@@ -10,9 +10,12 @@ from typing import Annotated, Literal
 from pydantic import Field, FiniteFloat, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from .cores import defaults
+
 DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "default"
 # A comma-separated list in a flag or an env var (DEFORM_CORS_ORIGINS=https://a.org,https://b.org), not JSON.
 CommaList = Annotated[list[str], NoDecode]
+CommaInts = Annotated[list[Annotated[int, Field(ge=1, le=256)]], NoDecode]
 
 
 class Settings(BaseSettings):
@@ -23,22 +26,32 @@ class Settings(BaseSettings):
     model: Path = DEFAULT_MODEL
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 8000
-    threads: Annotated[int, Field(ge=1, le=64, description="onnxruntime intra-op threads")] = 1
+    # Process and thread counts default from the cores this process may use (service/cores.py)
+    threads: Annotated[int, Field(ge=1, le=64, default_factory=lambda: defaults().threads, description=(
+        "onnxruntime intra-op threads per worker (default: from the usable cores)"))]
     max_points: Annotated[int, Field(ge=1, le=1_000_000, description="most points in one request")] = 10_000
     max_body_bytes: Annotated[int, Field(ge=1024, le=1 << 30, description="largest request body")] = 1 << 20
     log_level: str = "info"
-    # 2: on this 2-core machine, with batching, more 8-client throughput than 1 worker for full-mesh
-    # replies at 312k nodes and JSON at 13k, less for small binary replies at 13k; the same 1-client
-    # latency (scripts/bench_service.py, README)
-    workers: Annotated[int, Field(ge=1, le=64, description="uvicorn worker processes")] = 2
+    workers: Annotated[int, Field(ge=1, le=64, default_factory=lambda: defaults().workers, description=(
+        "uvicorn worker processes (default: from the usable cores)"))]
     access_log: Literal["text", "json", "off"] = Field(
         "text", description="one line per request: uvicorn's text, JSON lines on stdout, or none")
 
     # Dynamic batching (service/batching.py): requests that arrive together decode in one onnxruntime call.
     batching: bool = Field(True, description="decode concurrent requests with the same node set together")
-    batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 8
+    # 16: at 312k nodes a decode reads the whole basis once per call, so a batch of 16 costs 1.5x one of 8 on
+    # one core (bench/service.py's decode table); at 10k nodes batches rarely pass 8
+    batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 16
+    batch_preferred_sizes: CommaInts = Field([], description=(
+        "batch sizes worth waiting for (as Triton's preferred_batch_size), comma-separated; none: only the largest"))
     batch_max_delay_ms: Annotated[float, Field(ge=0, le=100, description=(
-        "how long a batch may wait to fill after its first request, ms, when the last batch had company"))] = 0.5
+        "most a batch may wait to grow after its first request, ms, when the last batch had company; "
+        "capped at a quarter of the recent batch run time"))] = 1.0
+    batch_lanes: Annotated[int, Field(ge=1, le=64, default_factory=lambda: defaults().lanes, description=(
+        "batches decoded at once, each in its own thread (default: from the usable cores)"))]
+    inline_max_ms: Annotated[float, Field(ge=0, le=10, description=(
+        "decode on the event loop, with no thread hop, a request whose decode measured at start takes at most "
+        "this long, when no batch is waiting or running; 0: never"))] = 0.3
     max_pending: Annotated[int, Field(ge=1, le=100_000, description=(
         "most /predict requests in the service at once (decoding or waiting); more get 503"))] = 256
 
@@ -88,7 +101,7 @@ class Settings(BaseSettings):
             raise ValueError(f"unknown log level {value!r}")
         return value.lower()
 
-    @field_validator("auth_tokens", "cors_origins", mode="before")
+    @field_validator("auth_tokens", "cors_origins", "batch_preferred_sizes", mode="before")
     @classmethod
     def _comma_list(cls, value):
         if isinstance(value, str):

@@ -16,6 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from service.cores import usable_cores  # its one owner; the service must not import studies
+
 ROOT = Path(__file__).resolve().parents[1]
 RUNS_RESULTS = ROOT / "runs" / "results"
 DOCS_RESULTS = ROOT / "docs" / "results"
@@ -30,18 +32,6 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or "unknown"
-
-
-def usable_cores() -> int:
-    """Cores this process may run on: its CPU affinity, capped by a cgroup v2 CPU quota."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    try:
-        quota, period = Path("/sys/fs/cgroup/cpu.max").read_text().split()
-        if quota != "max":
-            cores = max(1, min(cores, int(-(-int(quota) // int(period)))))
-    except (OSError, ValueError):
-        pass
-    return cores
 
 
 def machine() -> dict:

@@ -24,13 +24,10 @@ def test_a_batch_of_different_requests_gives_each_its_own_answer(predictor, requ
     for request, got in zip(requests, batched):
         solo = predict(predictor, request)
         assert got.region == solo.region
-        if request.region is None and request.points is None:
-            np.testing.assert_array_equal(got.positions, solo.positions)  # the full mesh: bit for bit
-        else:  # a node subset: onnxruntime's Gemm may round the last bit differently in a batch
-            np.testing.assert_allclose(got.positions, solo.positions, rtol=0, atol=1e-5)
+        np.testing.assert_array_equal(got.positions, solo.positions)  # bit for bit
         for name in ("displacements", "node_ids"):
             a, b = getattr(got, name), getattr(solo, name)
-            assert (a is None) == (b is None) and (a is None or np.allclose(a, b, rtol=0, atol=1e-5))
+            assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
     # the full-mesh answers differ from one another by millimetres, so a swap would not pass the checks above
     assert np.abs(batched[0].positions - batched[2].positions).max() > 1.0
 
@@ -78,7 +75,7 @@ def test_after_a_busy_batch_the_next_waits_until_it_is_full():
 
     async def scenario():
         batcher = Batcher(lambda items: calls.append(items) or items, max_batch=3, max_delay_s=60.0, max_queue=8)
-        batcher._last_size = 2  # as after a batch of two
+        batcher._last_size, batcher._run_s = 2, 1e3  # as after a batch of two that took long
         batcher.start()
         tasks = []
         for i in range(3):
@@ -114,7 +111,8 @@ def test_a_full_queue_refuses_at_once():
 def test_concurrent_http_requests_are_batched_and_the_queue_time_is_in_metrics(settings, predictor):
     from service.app import create_app
 
-    app = create_app(settings.model_copy(update={"batching": True, "batch_max_size": 8}))
+    # inline_max_ms 0: every request goes through the batcher, even one that finds the service idle
+    app = create_app(settings.model_copy(update={"batching": True, "batch_max_size": 8, "inline_max_ms": 0}))
     guides = [(d, a) for d, a in zip(np.linspace(0.5, 10, 12), np.linspace(-10, 10, 12))]
 
     async def scenario():
@@ -133,3 +131,77 @@ def test_concurrent_http_requests_are_batched_and_the_queue_time_is_in_metrics(s
     count = float(re.search(r"^predict_queue_seconds_count (\S+)", metrics, re.M).group(1))
     batches = float(re.search(r"^predict_batch_size_count (\S+)", metrics, re.M).group(1))
     assert count == len(guides) and batches < len(guides)  # every request queued; some shared a batch
+
+
+@pytest.mark.parametrize("accept", ["application/octet-stream", "application/json"])
+def test_replies_are_the_same_bytes_with_batching_on_and_off(settings, accept):
+    """Concurrent full-mesh and marker requests through the batcher (every decode batched) and without it."""
+    from service.app import create_app
+
+    bodies = [{"displacement_mm": d, "angle_deg": a, **extra} for d, a, extra in [
+        (5.0, 2.0, {}), (9.5, -7.0, {"region": "markers"}), (1.0, 3.0, {}), (3.0, 9.0, {"region": "markers"}),
+        (10.0, -10.0, {}), (0.0, 0.0, {})]]
+
+    async def replies(update):
+        app = create_app(settings.model_copy(update=update))
+        async with app.router.lifespan_context(app), httpx.AsyncClient(
+                transport=httpx.ASGITransport(app=app), base_url="http://service") as client:
+            got = await asyncio.gather(*[client.post("/predict", json=b, headers={"accept": accept}) for b in bodies])
+            return [r.content for r in got], (await client.get("/metrics")).text
+
+    on, metrics = asyncio.run(replies({"batching": True, "inline_max_ms": 0, "batch_lanes": 2}))
+    off, _ = asyncio.run(replies({"batching": False}))
+    inline, _ = asyncio.run(replies({"batching": True}))  # cheap decodes on the event loop
+    assert on == off == inline
+    assert float(re.search(r"^predict_batch_size_count (\S+)", metrics, re.M).group(1)) > 0
+
+
+def test_lanes_run_batches_at_the_same_time():
+    """With two lanes, a second batch starts while the first is still running (each waits for the other)."""
+    both = threading.Barrier(2, timeout=5)
+
+    def run_batch(items):
+        both.wait()  # raises BrokenBarrierError unless two batches are in run_batch at once
+        return items
+
+    async def scenario():
+        batcher = Batcher(run_batch, max_batch=1, max_delay_s=0.0, max_queue=8, lanes=2)
+        batcher.start()
+        results = await asyncio.gather(batcher.submit("a"), batcher.submit("b"))
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == ["a", "b"]
+
+
+def test_a_cheap_batch_does_not_wait_for_company():
+    """The delay is capped by the recent batch run time: after busy batches of a fast decode, a lone request
+    goes without waiting out a 60 s max_delay."""
+    async def scenario():
+        batcher = Batcher(lambda items: items, max_batch=8, max_delay_s=60.0, max_queue=8)
+        batcher._last_size, batcher._run_s = 4, 1e-4  # as after batches of four taking 0.1 ms
+        batcher.start()
+        result = await asyncio.wait_for(batcher.submit(1), 10)
+        await batcher.stop()
+        return result
+
+    assert asyncio.run(scenario()) == 1
+
+
+def test_a_batch_waits_only_for_the_next_preferred_size():
+    calls = []
+
+    async def scenario():
+        batcher = Batcher(lambda items: calls.append(items) or items, max_batch=8, max_delay_s=60.0, max_queue=16,
+                          preferred=[2])
+        batcher._last_size, batcher._run_s = 2, 1e3
+        batcher.start()
+        tasks = []
+        for i in range(2):
+            tasks.append(asyncio.create_task(batcher.submit(i)))
+            await asyncio.sleep(0.01)
+        results = await asyncio.wait_for(asyncio.gather(*tasks), 10)
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == [0, 1] and calls == [[0, 1]]

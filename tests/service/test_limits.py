@@ -52,7 +52,7 @@ def test_a_full_service_answers_503_with_retry_after(settings, monkeypatch):
         return real(*args)
 
     monkeypatch.setattr(app_module, "predict_batch", held)
-    app = create_app(settings.model_copy(update={"max_pending": 1}))
+    app = create_app(settings.model_copy(update={"max_pending": 1, "inline_max_ms": 0}))  # the first waits in the batcher
 
     async def scenario():
         async with app.router.lifespan_context(app), httpx.AsyncClient(

@@ -134,7 +134,8 @@ def test_docs_and_schema_state_the_ranges(client):
 
 @pytest.mark.parametrize("batching", [False, True])
 def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch, batching):
-    """The decode runs off the event loop: with one predict held inside the decode, /healthz still answers."""
+    """A decode not cheap enough to run inline runs off the event loop: with one predict held inside the
+    decode, /healthz still answers (inline_max_ms 0 makes every decode such a one)."""
     import asyncio
     import threading
 
@@ -154,7 +155,7 @@ def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch,
         return real(*args)
 
     monkeypatch.setattr(module, name, held)
-    app = create_app(settings.model_copy(update={"batching": batching}))
+    app = create_app(settings.model_copy(update={"batching": batching, "inline_max_ms": 0}))
 
     async def scenario():
         async with app.router.lifespan_context(app), httpx.AsyncClient(
