@@ -90,7 +90,7 @@ RUNS ?= runs/default
 # Mesh levels of the contact study (every size times each; ratio 1.3); the glued one stays at three.
 SCALES ?= 1.69 1.3 1 0.769
 bench: $(STAMP) ## FE timings on the default scene
-	MKL_NUM_THREADS=1 $(PY) scripts/bench_fem.py
+	MKL_NUM_THREADS=1 $(PY) -m bench fem
 
 bench-service: $(STAMP) ## service latency and throughput on MODEL (models/default)
 	$(PY) scripts/bench_service.py --model $(MODEL)
@@ -102,15 +102,15 @@ bench-service: $(STAMP) ## service latency and throughput on MODEL (models/defau
 CONVERGENCE ?= docs/results/convergence_taylor_hood.json
 GRADED ?= docs/results/graded_mesh.json
 tradeoff: $(STAMP) ## accuracy vs time on the end-to-end error (RUNS= a sweep)
-	$(PY) scripts/tradeoff.py --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
-	    --graded $(GRADED) --mesh-check runs/tiny_mesh_check
+	$(PY) -m studies tradeoff --sweep $(RUNS) --offgrid $(RUNS)/offgrid --convergence $(CONVERGENCE) \
+	    --graded $(GRADED) --mesh-check runs/tiny_mesh_check --publish
 
 # The grid-convergence studies of both guide-wall models (docs/results/convergence_pointwise.json, docs/results/convergence_glued.json)
 # and their comparison (docs/results/contact_vs_glued.json); resumable: run it again to go on.
 convergence: $(STAMP) ## grid-convergence studies of both guide models and their comparison (resumable)
-	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(SCALES)
-	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide glued --scales 1.69 1.3 1
-	$(PY) scripts/contact_vs_glued.py
+	MKL_NUM_THREADS=2 $(PY) -m studies convergence-study --guide contact --step-mm 0.5 --scales $(SCALES) --publish
+	MKL_NUM_THREADS=2 $(PY) -m studies convergence-study --guide glued --scales 1.69 1.3 1 --publish
+	$(PY) -m studies contact-vs-glued --publish
 
 # The default model's FE error against the Taylor-Hood element's converged estimate (docs/results/fe_error_default.json):
 # the study on five contact levels (resumable; each case is judged on the three finest levels that solved it), the
@@ -119,25 +119,25 @@ convergence: $(STAMP) ## grid-convergence studies of both guide models and their
 # fifth (README, Grid convergence, "A fourth level" and "A fifth level"); stop and rerun to resume.
 TH_SCALES ?= 1.3 1 0.769 0.5917 0.4552
 TH_CASES ?= 10:0 10:10 5:5
-TH_NAME ?= convergence_contact_taylor_hood_5levels
+TH_NAME ?= convergence_taylor_hood
 fe-error-taylor-hood: $(STAMP) ## Taylor-Hood convergence study, models/default against it, restamp (hours; resumable)
-	MKL_NUM_THREADS=2 $(PY) scripts/convergence_study.py --guide contact --step-mm 0.5 --scales $(TH_SCALES) \
-	    --volumetric taylor_hood --cases $(TH_CASES) --name $(TH_NAME)
-	$(PY) scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
-	    --scales $(TH_SCALES) --cases $(TH_CASES) --json docs/results/fe_error_default.json
+	MKL_NUM_THREADS=2 $(PY) -m studies convergence-study --guide contact --step-mm 0.5 --scales $(TH_SCALES) \
+	    --volumetric taylor_hood --cases $(TH_CASES) --name $(TH_NAME) --publish
+	$(PY) -m studies model-vs-converged --model models/default --study runs/convergence_contact_taylor_hood \
+	    --scales $(TH_SCALES) --cases $(TH_CASES) --publish
 	$(PY) -m training restamp --model models/default --fe-error docs/results/fe_error_default.json
 
 # Meshes graded where the error is ($(GRADED)): each solves the hard cases (6-9 min here) and is judged
 # against the Taylor-Hood study's converged estimate (its folder from fe-error-taylor-hood); resumable.
 GRADED_SIZES ?= 15.600000000000001:4:2 15.600000000000001:3.08:2.6 15.600000000000001:5.2:1.54
 graded-mesh: $(STAMP) ## meshes graded at the prostate and tip, judged against the converged estimate
-	MKL_NUM_THREADS=2 $(PY) scripts/graded_mesh.py --sizes $(GRADED_SIZES) --scales $(TH_SCALES) --json $(GRADED)
+	MKL_NUM_THREADS=2 $(PY) -m studies graded-mesh --sizes $(GRADED_SIZES) --scales $(TH_SCALES) --publish
 
 # Up to which displacement the linear model is a deformation (docs/results/linear_validity.json), on the default model's
 # scene; 2 min. With its nonlinear sweep in $(RUNS) (default-model's) it compares with it on the same mesh and
 # bounds det F of all its snapshots.
 linear-validity: $(STAMP) ## up to which push the linear model is a deformation
-	$(PY) scripts/linear_validity.py --scene $(DEFAULT_SCENE) $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS))
+	$(PY) -m studies linear-validity --scene $(DEFAULT_SCENE) $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS)) --publish
 
 # The committed models/default from scratch: sweep, off-grid cases (from rest), fit, then the
 # stamp of its end-to-end error against the Taylor-Hood study's converged estimate (fe-error-taylor-hood).
@@ -162,11 +162,11 @@ labelmesh: $(STAMP) ## CGAL and pygalmesh for the default label-map mesher (abou
 	$(PY) -m pip install -q -e '.[labelmesh]'
 
 # Marker motion of the three anatomical variants (fem_offline/scenes/anatomy/) at 10 mm, beta = 0, on their
-# 1 mm label maps' meshes with the scenes' physics: docs/results/anatomy_table.json (scripts/anatomy_table.py; needs
+# 1 mm label maps' meshes with the scenes' physics: docs/results/anatomy_table.json (python -m studies anatomy-table; needs
 # `make labelmesh`). Each variant's mesh and solve resume: VARIANTS=small runs one.
 VARIANTS ?= small medium large
 anatomy-table: $(STAMP) ## marker motion of the three anatomical variants (needs labelmesh)
-	MKL_NUM_THREADS=2 $(PY) scripts/anatomy_table.py --variants $(VARIANTS)
+	MKL_NUM_THREADS=2 $(PY) -m studies anatomy-table --variants $(VARIANTS) --publish
 
 clean: ## remove .venv and build outputs
 	rm -rf $(VENV) build *.egg-info site

@@ -1,6 +1,6 @@
 """OpenIGTLink round trip over loopback: NeedleGuide pose out, DeformedPoints back; prints p50/p99.
 
-    python scripts/bench_igtl.py [--model models/default] [--n 2000] [--client socket|pyigtl] [--targets 4]
+    python -m bench igtl [--model models/default] [--n 2000] [--client socket|pyigtl] [--targets 4]
 
 `socket` is a blocking client that reads the reply as soon as it arrives (as Slicer's OpenIGTLink
 library does); `pyigtl` is pyigtl's client, which polls its queues every 10 ms.
@@ -19,6 +19,9 @@ from service.guide import Guide
 from service.igtl import POINTS_NAME, IgtlServer, Responder, read_message
 from service.model import Predictor, read_model_folder
 from service.settings import DEFAULT_MODEL
+
+from bench._report import Report
+from studies import results
 
 
 def socket_round_trips(port: int, poses: list[np.ndarray]) -> np.ndarray:
@@ -48,13 +51,15 @@ def pyigtl_round_trips(port: int, poses: list[np.ndarray]) -> np.ndarray:
     return np.array(seconds)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m bench igtl", description=__doc__.splitlines()[0])
     ap.add_argument("--model", default=DEFAULT_MODEL)
     ap.add_argument("--n", type=int, default=2000)
     ap.add_argument("--client", choices=("socket", "pyigtl"), default="socket")
     ap.add_argument("--targets", type=int, default=4, help="target points inside the prostate, sent with the markers")
-    args = ap.parse_args()
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
+    say = Report()
     folder = read_model_folder(args.model)
     prostate = folder.mesh.tissue == folder.manifest.mesh.tissues.index("prostate")
     targets = {f"target_{i}": folder.nodes[t[:4]].mean(0).tolist()
@@ -66,10 +71,8 @@ def main() -> None:
     run(server.port, poses[:20])  # warm-up
     ms = 1e3 * run(server.port, poses)
     server.stop()
-    print(f"{folder.manifest.name}: {args.n} poses, {len(targets) + len(folder.regions['markers'])} points each, "
+    say(f"{folder.manifest.name}: {args.n} poses, {len(targets) + len(folder.regions['markers'])} points each, "
           f"{args.client} client: p50 {np.percentile(ms, 50):.3f} ms, p99 {np.percentile(ms, 99):.3f} ms, "
           f"max {ms.max():.3f} ms")
-
-
-if __name__ == "__main__":
-    main()
+    print(f"wrote {results.write('bench_igtl', {'lines': say.lines}, publish=args.publish)}")
+    return 0

@@ -1,6 +1,6 @@
 """Time 10,000-point /predict requests, and /healthz while they run.
 
-    python scripts/bench_points.py [--model models/default] [--points 10000] [--repeat 5]
+    python -m bench points [--model models/default] [--points 10000] [--repeat 5]
 
 Three point sets: all in the rectal lumen (inside the bounding box, in no tet: a 422), uniform in
 the bounding box (mostly inside; the first lumen point makes it a 422) and inside random tets (a
@@ -28,6 +28,9 @@ from service.model import OutsideMesh, Predictor, read_model_folder
 from service.predict import predict
 from service.schemas import predict_request_model
 from service.settings import DEFAULT_MODEL, Settings
+
+from bench._report import Report
+from studies import results
 
 
 def point_sets(folder, n: int, lumen_mm: list[float], seed: int = 0) -> dict[str, np.ndarray]:
@@ -89,25 +92,27 @@ def over_http(url: str, bodies: dict[str, bytes], repeat: int) -> tuple[dict[str
     return posts, during
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m bench points", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--points", type=int, default=10_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--lumen", type=float, nargs=3, default=[0.0, -21.0, 40.0], help="a point in the rectal lumen, mm")
-    args = ap.parse_args()
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
+    say = Report()
 
     folder = read_model_folder(args.model)
     settings = Settings(model=args.model, max_points=args.points)
     request_model = predict_request_model(model_info(folder, settings), args.points)
     predictor = Predictor(folder)
     sets = point_sets(folder, args.points, args.lumen)
-    print(f"model {folder.manifest['name']}: {len(folder.nodes)} nodes, {len(folder.tets)} tets; "
+    say(f"model {folder.manifest['name']}: {len(folder.nodes)} nodes, {len(folder.tets)} tets; "
           f"{args.points} points per request, median of {args.repeat}; load average {os.getloadavg()[0]:.1f}")
     for name, points in sets.items():
         body = request_model(displacement_mm=5.0, angle_deg=2.0, points=points.tolist())
         wall, cpu, outcome = in_process_ms(predictor, body, args.repeat)
-        print(f"  predict() in process, {name:6s}: {wall:6.1f} ms wall, {cpu:6.1f} ms CPU  ({outcome})")
+        say(f"  predict() in process, {name:6s}: {wall:6.1f} ms wall, {cpu:6.1f} ms CPU  ({outcome})")
 
     bodies = {name: orjson.dumps({"displacement_mm": 5.0, "angle_deg": 2.0, "points": points},
                                  option=orjson.OPT_SERIALIZE_NUMPY) for name, points in sets.items()}
@@ -116,15 +121,12 @@ def main() -> int:
         posts, health = over_http(url, bodies, args.repeat)
     for name, runs in posts.items():
         ms = np.array([t for t, _ in runs])
-        print(f"  POST /predict, {name:6s}: median {np.median(ms):7.1f} ms, max {ms.max():7.1f} ms "
+        say(f"  POST /predict, {name:6s}: median {np.median(ms):7.1f} ms, max {ms.max():7.1f} ms "
               f"(status {sorted({s for _, s in runs})}, {len(bodies[name]) / 1e3:.0f} kB body)")
     if health:
-        print(f"  GET /healthz during those POSTs: {len(health)} polls, median {np.median(health):.2f} ms, "
+        say(f"  GET /healthz during those POSTs: {len(health)} polls, median {np.median(health):.2f} ms, "
               f"p95 {np.percentile(health, 95):.2f} ms, max {max(health):.2f} ms")
     else:
-        print("  GET /healthz during those POSTs: no poll completed inside a POST")
+        say("  GET /healthz during those POSTs: no poll completed inside a POST")
+    print(f"wrote {results.write('bench_points', {'lines': say.lines}, publish=args.publish)}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Slider-to-frame latency of the viewer in headless chromium (software WebGL), and what each way of fetching a frame costs.
 
-    python scripts/bench_viewer.py [--model models/default] [--moves 200] [--pause-ms 30] [--interval-ms 16.7] [--rounds 50]
+    python -m bench viewer [--model models/default] [--moves 200] [--pause-ms 30] [--interval-ms 16.7] [--rounds 50]
 
 Starts `python -m service` on a loopback port, opens /viewer and prints the page's own figures
 (window.__viewer, the 'viewer-frame' events):
@@ -32,6 +32,9 @@ from service.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
 from service.viewer import drawn_nodes, region_cover
+
+from bench._report import Report
+from studies import results
 
 # `n` rounds; in each, every way (a list of /predict bodies fetched in parallel) once, in turn.
 FETCH_ROUNDS = """async ([ways, n]) => { const out = ways.map(() => []);
@@ -126,8 +129,8 @@ def _query(args) -> str:
     return "&".join(parts)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m bench viewer", description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--moves", type=int, default=200)
     ap.add_argument("--pause-ms", type=float, default=30.0, help="stepwise drag: pause after each frame")
@@ -139,14 +142,16 @@ def main() -> None:
                     help="resolution of a drag's frames (/viewer?scale=): default the page's choice (0.5 on a software renderer, "
                          "then a still frame at full resolution); 1 keeps full resolution")
     ap.add_argument("--trace", type=Path, help="write a chromium trace of the paced drag here and print its slowest GL commands")
-    args = ap.parse_args()
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
+    say = Report()
     folder = read_model_folder(args.model)
     with local_service("--model", str(args.model)) as url, launch_chromium() as browser, \
             open_viewer(url, browser=browser, watch=False, query=_query(args)) as (page, _):
         scene = page.evaluate("fetch('/viewer/scene.json').then((r) => r.json())")
-        print(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
+        say(f"{scene['model']}: {len(folder.nodes):,} nodes; a frame asks /predict for "
               f"{', '.join(r or 'the whole mesh' for r in scene['regions'])}")
-        print(f"  WebGL: {page.evaluate('__viewer.webgl')}, multisampling "
+        say(f"  WebGL: {page.evaluate('__viewer.webgl')}, multisampling "
               f"{'on' if page.evaluate('__viewer.contextAntialias()') else 'off'}, a drag's frames at "
               f"{page.evaluate('__viewer.dragScale'):g} of full resolution")
         hi = page.evaluate("Number(document.getElementById('displacement').max)")
@@ -161,23 +166,21 @@ def main() -> None:
         if args.trace:
             browser.stop_tracing()
         frames = paced["frames"]
-        print(f"  paced drag, {paced['inputs']} inputs every {args.interval_ms:.1f} ms over {paced['seconds']:.1f} s: "
+        say(f"  paced drag, {paced['inputs']} inputs every {args.interval_ms:.1f} ms over {paced['seconds']:.1f} s: "
               f"{len(frames)} frames, {np.mean([f['inputs'] for f in frames]):.1f} inputs a frame (max "
               f"{max(f['inputs'] for f in frames)}):")
-        print(f"    latest input shown to frame: {_summary([f['frameMs'] for f in frames])}")
-        print(f"    first input answered to frame: {_summary([f['firstInputMs'] for f in frames])}")
-        print(f"    of which the /predict replies: {_summary([f['fetchMs'] for f in frames])}")
-        print(f"    stalls: {_stalls(frames)}")
+        say(f"    latest input shown to frame: {_summary([f['frameMs'] for f in frames])}")
+        say(f"    first input answered to frame: {_summary([f['firstInputMs'] for f in frames])}")
+        say(f"    of which the /predict replies: {_summary([f['fetchMs'] for f in frames])}")
+        say(f"    stalls: {_stalls(frames)}")
         if args.trace:
-            print(f"    slowest GL commands in the GPU process (trace: {args.trace}):")
+            say(f"    slowest GL commands in the GPU process (trace: {args.trace}):")
             for line in _slow_gl_commands(args.trace):
-                print(f"      {line}")
+                say(f"      {line}")
         ways = _ways(folder, scene, {"displacement_mm": hi / 2})
         times = page.evaluate(FETCH_ROUNDS, [[bodies for _, bodies in ways], args.rounds])
-        print(f"  fetch only, {args.rounds} rounds, the ways interleaved:")
+        say(f"  fetch only, {args.rounds} rounds, the ways interleaved:")
         for (label, bodies), ms in zip(ways, times):
-            print(f"    {label}, {len(bodies)} request{'s' if len(bodies) > 1 else ''}: {_summary(ms)}")
-
-
-if __name__ == "__main__":
-    main()
+            say(f"    {label}, {len(bodies)} request{'s' if len(bodies) > 1 else ''}: {_summary(ms)}")
+    print(f"wrote {results.write('bench_viewer', {'lines': say.lines}, publish=args.publish)}")
+    return 0

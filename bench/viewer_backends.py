@@ -1,6 +1,6 @@
 """What each software WebGL backend and multisampling cost the viewer a frame, on this machine's CPUs.
 
-    python scripts/viewer_backends.py [--model models/default] [--frames 20] [--moves 300]
+    python -m bench viewer-backends [--model models/default] [--frames 20] [--moves 300]
 
 For SwiftShader and Mesa's llvmpipe (service.browser's two flag sets), with multisampling on and
 off (/viewer?antialias=1 or 0; scale=1, every frame at full resolution), starts chromium on
@@ -26,6 +26,9 @@ from service.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, drag, launch_chro
     set_slider
 from service.loadtest import local_service
 from service.settings import DEFAULT_MODEL
+
+from bench._report import Report
+from studies import results
 
 
 def gpu_process_cpu_s() -> float:
@@ -61,25 +64,25 @@ def measure(url: str, flags: list[str], antialias: int, frames: int, moves: int)
             "p99": np.percentile(ms, 99), "max": ms.max(), "stalls": int((render > 200).sum())}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m bench viewer-backends", description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--frames", type=int, default=20, help="frames timed one at a time for the GPU process's CPU")
     ap.add_argument("--moves", type=int, default=300, help="stepwise drag for slider-to-frame")
-    args = ap.parse_args()
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
+    say = Report()
     with local_service("--model", str(args.model)) as url:
-        print(f"{args.model}: GPU-process CPU per frame over {args.frames} frames; slider to frame over a "
+        say(f"{args.model}: GPU-process CPU per frame over {args.frames} frames; slider to frame over a "
               f"{args.moves}-move stepwise drag")
-        print("| WebGL | multisampling | GPU process CPU per frame | slider to frame p50 / p99 / max | renders > 200 ms |")
-        print("|---|---|---|---|---|")
+        say("| WebGL | multisampling | GPU process CPU per frame | slider to frame p50 / p99 / max | renders > 200 ms |")
+        say("|---|---|---|---|---|")
         for flags in (SWIFTSHADER_FLAGS, LLVMPIPE_FLAGS):
             for antialias in (1, 0):
                 r = measure(url, flags, antialias, args.frames, args.moves)
                 name = "llvmpipe" if "llvmpipe" in r["renderer"] else "SwiftShader" if "SwiftShader" in r["renderer"] \
                     else r["renderer"]
-                print(f"| {name} | {'on' if r['antialias'] else 'off'} | {r['gpu_ms']:.0f} ms | {r['p50']:.1f} / "
+                say(f"| {name} | {'on' if r['antialias'] else 'off'} | {r['gpu_ms']:.0f} ms | {r['p50']:.1f} / "
                       f"{r['p99']:.1f} / {r['max']:.0f} ms | {r['stalls']} |", flush=True)
-
-
-if __name__ == "__main__":
-    main()
+    print(f"wrote {results.write('bench_viewer_backends', {'lines': say.lines}, publish=args.publish)}")
+    return 0

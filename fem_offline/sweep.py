@@ -15,7 +15,7 @@ which Newton keeps > 0 on a nonlinear path), at the 11 points per tet of the deg
 over every point of every tet (`min_det_f_bound`, validity.det_f_bound: > 0 proves it a deformation,
 <= 0 is det F at a point where it is not). Any <= 0 counts as inverted.
 
-What the probe adds on the default mesh (9,030 tets; `python scripts/bench_fem.py --mesh
+What the probe adds on the default mesh (9,030 tets; `python -m bench fem --mesh
 runs/default_contact/mesh.npz --steps 1`, run twice, the 2 cores shared with another FE job): its
 basis, once per process, 0.08 s; per nonlinear snapshot one det F at 11 points, 23 ms (the contact
 sweep's snapshots take a median 12 s: 0.2 %); per linear snapshot, det F's cubic in d evaluated at

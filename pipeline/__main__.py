@@ -21,7 +21,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--width", type=int, default=30, help="hidden neurons (default 30: on a 4 deg sweep, 60 overfits "
                    "between the angles, docs/results/sweep_density_patient.json)")
     b.add_argument("--workers", type=int, default=2)
-    b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, scripts/labelmap_truth.py's JSON "
+    b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, `python -m studies labelmap-truth`'s JSON "
                    "(default: the package's copy of docs/results/labelmap_truth.json): the row of the map's voxel size, mesher and sizes goes into the manifest")
     return ap
 

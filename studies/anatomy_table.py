@@ -1,9 +1,9 @@
 """Marker motion of each anatomical variant at one guide push (issue #14): label map -> mesh -> FE, side by side.
 
-    python scripts/anatomy_table.py [--variants small medium large] [--work runs/anatomy] [--json docs/anatomy_table.json]
+    python -m studies anatomy-table [--variants small medium large] [--work runs/anatomy] [--publish]
 
 For each fem_offline/scenes/anatomy/<variant>.toml: voxelise the phantom at --spacing-mm into
-<work>/<variant>/labels.nii.gz with its label-map scene (scripts/make_labelmap.py), then run
+<work>/<variant>/labels.nii.gz with its label-map scene (`python -m studies make-labelmap`), then run
 
     python -m fem_offline mesh  --scene <work>/<variant>/scene.toml --out <work>/<variant>/mesh.npz
     python -m fem_offline solve --scene <work>/<variant>/scene.toml --mesh <work>/<variant>/mesh.npz \\
@@ -12,35 +12,33 @@ For each fem_offline/scenes/anatomy/<variant>.toml: voxelise the phantom at --sp
 with the scene's physics and mesh sizes (default.toml's: nonlinear, the guide tip in frictionless
 contact). A step whose file exists is skipped, so the solves can be run one at a time by hand or by
 --variants. Prints |u| at the 8 prostate markers of each variant (marker k is in the same octant of
-every prostate) with the variants' anatomy, and writes them to --json.
+every prostate) with the variants' anatomy, and writes them as the result anatomy_table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from pathlib import Path
 
 import numpy as np
-import tomli_w
+from tqdm import tqdm
 
-ROOT = Path(__file__).resolve().parents[1]
-VARIANTS_DIR = ROOT / "fem_offline" / "scenes" / "anatomy"
+from contracts.cli import number
+from studies import results
+from studies.options import SCENES
+
+VARIANTS_DIR = SCENES / "anatomy"
 
 
 def prepare(variant: str, folder: Path, spacing_mm: float) -> Path:
     """The variant's label map and label-map scene in `folder` (kept when already there); the scene's path."""
-    from fem_offline.labelmap.io import write_label_map
-    from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
     from fem_offline.scene import load_scene
+    from studies.make_labelmap import write_labelmap
 
     scene_path = folder / "scene.toml"
     if not scene_path.exists():
         scene = load_scene(VARIANTS_DIR / f"{variant}.toml")
-        folder.mkdir(parents=True, exist_ok=True)
-        labels = write_label_map(folder / "labels.nii.gz", voxelise(scene.phantom, spacing_mm))
-        scene_path.write_text(tomli_w.dumps(labelmap_scene(scene, labels.name, name=scene.name)))
+        write_labelmap(scene, spacing_mm, folder, name=scene.name)
     return scene_path
 
 
@@ -118,16 +116,16 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variants", nargs="+", default=["small", "medium", "large"])
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies anatomy-table", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--variants", nargs="+", choices=("small", "medium", "large"), default=["small", "medium", "large"])
     ap.add_argument("--work", type=Path, default=Path("runs/anatomy"))
-    ap.add_argument("--spacing-mm", type=float, default=1.0)
-    ap.add_argument("--json", type=Path, default=Path("docs/anatomy_table.json"))
+    ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), default=1.0)
     ap.add_argument("--prepare-only", action="store_true", help="write the label maps and meshes, solve nothing")
+    results.add_publish_flag(ap)
     args = ap.parse_args(argv)
     d, beta = 10.0, 0.0
-    for v in args.variants:
+    for v in tqdm(args.variants, desc="variants", unit="variant"):
         folder = args.work / v
         scene_path = prepare(v, folder, args.spacing_mm)
         if not (folder / "mesh.npz").exists():
@@ -140,11 +138,5 @@ def main(argv=None) -> int:
     rows = [row(v, args.work / v, displacement_mm=d, angle_deg=beta) for v in args.variants]
     print(f"\nguide push {d:g} mm at beta = {beta:g} deg, {args.spacing_mm:g} mm label maps, the scenes' physics and mesh sizes\n")
     print(table(rows))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"spacing_mm": args.spacing_mm, "rows": rows}, indent=2) + "\n")
-    print(f"\n{args.json}")
+    print(f"\nwrote {results.write('anatomy_table', {'spacing_mm': args.spacing_mm, 'rows': rows}, publish=args.publish)}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,27 +1,32 @@
 """Label-map meshers on the voxelised phantom: tets, time, validity, quality, tissue volumes, conformity, linear FE.
 
-    python scripts/compare_meshers.py --scene fem_offline/scenes/default.toml --spacing-mm 1 0.5 \
-        [--meshers cgal tetgen] [--ftetwild] [--out docs/meshers.json]
+    python -m studies compare-meshers --spacing-mm 1 0.5 [--scene fem_offline/scenes/grid_study_base.toml] \
+        [--meshers cgal tetgen] [--ftetwild] [--publish]
 
-Each label map is the phantom voxelised as scripts/make_labelmap.py does (written under --work);
+Each label map is the phantom voxelised as `python -m studies make-labelmap` does (written under --work);
 volumes are against the exact phantom (voxel centres at 0.25 mm), markers against the gmsh phantom
 mesh's linear answer at its 8 markers (10 mm, beta = 0, guide glued), next to how much that answer
-moves when the gmsh mesh is refined by 1.3. A mesher whose package is missing is skipped.
+moves when the gmsh mesh is refined by 1.3. A mesher whose package is missing is skipped. The result
+is meshers, with the scene's file name for another scene than the studies' base (meshers_tiny) and
+the meshers for another set than cgal and tetgen (meshers_ftetwild); --name overrides it.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import logging
 import sys
 from pathlib import Path
 
 from studies.meshers import study
+from contracts.cli import number
 from fem_offline.scene import load_scene
+from studies import results
+from studies.options import GRID_STUDY_SCENE, SERVED_SCENE, add_scene_flag
 
 PACKAGE = {"cgal": "pygalmesh", "tetgen": "tetgen", "ftetwild": "pytetwild"}
+DEFAULT_MESHERS = ["cgal", "tetgen"]
 TISSUES = ("prostate", "rectal_wall", "bladder", "pubic_bone", "spine", "adipose")
 
 
@@ -42,15 +47,25 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"), help="a phantom scene")
-    ap.add_argument("--spacing-mm", type=float, nargs="+", default=[1.0])
-    ap.add_argument("--meshers", nargs="+", choices=("cgal", "tetgen", "ftetwild"), default=["cgal", "tetgen"])
+def result_name(scene: Path, meshers: list[str]) -> str:
+    """meshers[_SCENE][_MESHERS]: the scene's file name unless it is the studies' base (or the served scene, which
+    the first results were measured on), the meshers unless they are cgal and tetgen."""
+    base = {GRID_STUDY_SCENE.stem, SERVED_SCENE.stem}
+    return ("meshers" + ("" if scene.stem in base else f"_{scene.stem}")
+            + ("" if meshers == DEFAULT_MESHERS else "_" + "_".join(meshers)))
+
+
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies compare-meshers", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_flag(ap, what="a phantom scene")
+    ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), nargs="+", default=[1.0])
+    ap.add_argument("--meshers", nargs="+", choices=tuple(PACKAGE), default=DEFAULT_MESHERS)
     ap.add_argument("--ftetwild", action="store_true", help="also fTetWild (minutes per label map)")
     ap.add_argument("--work", type=Path, default=Path("runs/meshers"), help="folder for the label maps")
-    ap.add_argument("--out", type=Path, default=Path("docs/meshers.json"))
-    ap.add_argument("--max-solve-tets", type=int, default=150_000, help="no linear solve on a larger mesh")
+    ap.add_argument("--name", help="the result's name (default: from the scene and the meshers, see above)")
+    ap.add_argument("--max-solve-tets", type=number("--max-solve-tets", int, minimum=0), default=150_000,
+                    help="no linear solve on a larger mesh")
+    results.add_publish_flag(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     meshers = args.meshers + (["ftetwild"] if args.ftetwild else [])
@@ -61,15 +76,11 @@ def main(argv=None) -> int:
     if scene.phantom is None:
         print(f"error: {args.scene} is not a phantom scene", file=sys.stderr)
         return 2
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write = lambda result: args.out.write_text(json.dumps(result, indent=1) + "\n")  # noqa: E731 -- after every row
+    name = args.name or result_name(args.scene, meshers)
+    write = lambda result: results.write(name, result, publish=args.publish)  # noqa: E731 -- after every row
     result = study(scene, spacings_mm=args.spacing_mm, meshers=[m for m in meshers if m not in missing], folder=args.work,
                    max_solve_tets=args.max_solve_tets, on_row=write)
     print(table(result))
     print(f"gmsh phantom, |u| at its 8 markers: {', '.join(f'{u:.3f}' for u in result['phantom_marker_u_mm'])} mm; "
-          f"change when every size / 1.3: max {max(result['phantom_refined_marker_difference_mm']):.3f} mm; {args.out}")
+          f"change when every size / 1.3: max {max(result['phantom_refined_marker_difference_mm']):.3f} mm; {write(result)}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

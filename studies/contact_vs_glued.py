@@ -1,10 +1,10 @@
-"""The guide-wall model decided by measurement: glued patch vs rigid tip in contact -> docs/contact_vs_glued.{md,json}.
+"""The guide-wall model decided by measurement: glued patch vs rigid tip in contact (result contact_vs_glued).
 
-    python scripts/contact_vs_glued.py [--scales 1.69 1.3 1 0.77] [--docs docs]
+    python -m studies contact-vs-glued [--scales 1.69 1.3 1] [--publish]
 
 Reads the two grid-convergence studies' checkpoints (runs/convergence for the glued patch,
 runs/convergence_contact for the tip in contact: `make convergence` and
-`python scripts/convergence_study.py --contact --step-mm 0.5`; run those first, this script solves
+`python -m studies convergence-study --guide contact --step-mm 0.5`; run those first, this command solves
 nothing new once they are complete) on the same meshes, and reports for each hard case and level:
   * how far the two models are apart at the 8 markers, the prostate surface and the 3 interior points;
   * how much each model still changes from one level to the next (what refinement does to it);
@@ -14,13 +14,14 @@ nothing new once they are complete) on the same meshes, and reports for each har
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
 import numpy as np
 
 from contracts.mesh import read_mesh
+from studies import results
+from studies.options import add_scales_flag, add_scene_flag
 from studies.convergence import HARD_CASES, NEAR_TIP_MM, run_study, scaled_scene, study_scene
 from fem_offline.fe.problem import build_problem
 from fem_offline.fe.validity import resampled
@@ -113,26 +114,20 @@ def markdown(r: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
-    ap.add_argument("--scales", type=float, nargs="+", default=[1.69, 1.3, 1.0])
-    ap.add_argument("--docs", type=Path, default=Path("docs"))
-    args = ap.parse_args()
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies contact-vs-glued", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_flag(ap)
+    add_scales_flag(ap, [1.69, 1.3, 1.0], "the studies' levels, coarsest first")
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     result = compare(args.scene, args.scales)
-    command = "python scripts/contact_vs_glued.py --scales " + " ".join(f"{s:g}" for s in args.scales)
-    (args.docs / "contact_vs_glued.json").write_text(json.dumps(result, indent=1) + "\n")
-    (args.docs / "contact_vs_glued.md").write_text(markdown(result, command))
+    path = results.write("contact_vs_glued", {**result, "report_md": markdown(result, results.command())}, publish=args.publish)
     for case, rows in result["cases"].items():
         last = rows[-1]["change_from_coarser_mm"]
         print(f"{case}: last refinement changes markers by glued {last['glued']['markers_max']:.3f} / contact "
               f"{last['contact']['markers_max']:.3f} mm, surface near tip {last['glued']['surface_near_tip_max']:.3f} / "
               f"{last['contact']['surface_near_tip_max']:.3f} mm; models apart at the markers "
               f"{rows[-1]['apart_mm']['markers']['max']:.3f} mm")
-    print(f"wrote {args.docs / 'contact_vs_glued.md'}")
+    print(f"wrote {path}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

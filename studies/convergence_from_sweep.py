@@ -1,9 +1,9 @@
 """Seed a grid-convergence study's level from a sweep of that level's scene and mesh, so that
-`scripts/convergence_study.py` takes its hard cases from the sweep's snapshots instead of solving
+``python -m studies convergence-study`` takes its hard cases from the sweep's snapshots instead of solving
 them again.
 
-    python scripts/convergence_from_sweep.py --sweep runs/default_v7 --scale 0.769 --out runs/convergence_resolve
-    MKL_NUM_THREADS=2 python scripts/convergence_study.py --guide contact --step-mm 0.5 \\
+    python -m studies convergence-from-sweep --sweep runs/default_v7 --scale 0.769 --out runs/convergence_resolve
+    MKL_NUM_THREADS=2 python -m studies convergence-study --guide contact --step-mm 0.5 \\
         --scales 1.3 1 0.769 --out runs/convergence_resolve --docs runs/convergence_resolve
 
 The sweep must be of the study's scene at that scale (the same physics and mesh sizes; the
@@ -26,14 +26,14 @@ from studies.convergence import HARD_CASES, scaled_scene, study_scene
 from fem_offline.scene import parse_scene
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies convergence-from-sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
     ap.add_argument("--scale", type=float, required=True, help="the study level the sweep is (sizes x scale)")
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/grid_study_base.toml"))
     ap.add_argument("--step-mm", type=float, default=0.5, help="the study's load step (convergence_study.py --step-mm)")
     ap.add_argument("--out", type=Path, required=True)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     manifest = folder.read_manifest(args.sweep)
     study = scaled_scene(study_scene(args.scene, contact=True, step_mm=args.step_mm), args.scale)
     swept = parse_scene(manifest.scene, source=str(args.sweep / "manifest.json"))
@@ -61,7 +61,3 @@ def main() -> None:
                  scene_sha256=study.sha256())
         print(f"{path}: {d:g} mm, {beta:g} deg from {folder.snapshot_file(i, j)} ({seconds:.0f} s of the sweep's path)")
     (args.out / "seeded.json").write_text(json.dumps({"sweep": str(args.sweep), "scale": args.scale}) + "\n")
-
-
-if __name__ == "__main__":
-    main()

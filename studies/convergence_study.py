@@ -1,8 +1,14 @@
-"""Grid-convergence study of the nonlinear FE at the prostate (Roache's GCI) -> docs/convergence.{json,md,png}.
+"""Grid-convergence study of the nonlinear FE at the prostate (Roache's GCI): result convergence_<guide or element>.
 
-    python scripts/convergence_study.py [--scales 1.69 1.3 1] [--out runs/convergence] [--docs docs]
-    python scripts/convergence_study.py --guide contact --step-mm 0.5   # -> docs/convergence_contact.*, runs/convergence_contact
-    python scripts/convergence_study.py --guide glued                   # -> docs/convergence.*, runs/convergence
+    python -m studies convergence-study --guide contact --step-mm 0.5 [--scales 1.69 1.3 1]   # -> convergence_pointwise
+    python -m studies convergence-study --guide glued                   # -> convergence_glued, runs/convergence
+    python -m studies convergence-study --volumetric taylor_hood --publish   # -> docs/results/convergence_taylor_hood.json
+
+The result (the levels, the probe points, the analysis) goes to runs/results/NAME.json, with
+--publish to docs/results/NAME.json, its plot beside it as NAME.png; the field data (meshes and
+path checkpoints) and a Markdown report (report.md) to --out. NAME (--name) defaults to
+convergence_glued for the glued patch, convergence_pointwise for the tip in contact with the P2
+element, else convergence_<volumetric>.
 
 Meshes the scene with every size multiplied by each scale (a constant ratio between levels),
 solves the hard cases on each, resumably (every converged load step is checkpointed under --out;
@@ -14,31 +20,20 @@ the Richardson estimate, the GCI and the monotonic/oscillatory kind of each quan
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
 from pathlib import Path
 
 import numpy as np
 
-from studies.convergence import HARD_CASES, NEAR_TIP_MM, analyse, run_study, study_scene
 from fem_offline.scene import VOLUMETRIC
+from studies import results
+from studies.convergence import HARD_CASES, NEAR_TIP_MM, analyse, run_study, study_scene
+from studies.options import add_cases_flag, add_scales_flag, add_scene_flag, json_ready
+from contracts.cli import number
 
 
 BIG = ("prostate_surface", "nodes")  # fields at thousands of points: summarised, not stored
-
-
-def _clean(x):
-    """JSON-ready: arrays to lists, NaN to null (strict JSON has no NaN)."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _clean(x.tolist())
-    if isinstance(x, (float, np.floating)):
-        return float(x) if np.isfinite(x) else None
-    return x
 
 
 def _fmt(r: dict) -> str:
@@ -118,47 +113,55 @@ def plot(raw: dict, result: dict, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
-    ap.add_argument("--scales", type=float, nargs="+", default=[1.69, 1.3, 1.0], help="size multipliers, coarsest first")
+def names(scene) -> tuple[str, str]:
+    """(the result's name, the field data's folder under runs/) of a study of `scene`."""
+    contact, element = scene.effects.guide_contact, scene.solver.volumetric
+    folder = ("convergence_contact" if contact else "convergence") + ("" if element == "pointwise" else f"_{element}")
+    if element != "pointwise":
+        return f"convergence_{element}", folder
+    return ("convergence_pointwise" if contact else "convergence_glued"), folder
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m studies convergence-study", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_flag(ap)
+    add_scales_flag(ap, [1.69, 1.3, 1.0], "size multipliers, coarsest first")
     ap.add_argument("--guide", choices=("contact", "glued"),
                     help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: the scene's)")
-    ap.add_argument("--step-mm", type=float, help="load step along each path (default: the scene's solver.max_step_mm)")
+    ap.add_argument("--step-mm", type=number("--step-mm", minimum=1e-3),
+                    help="load step along each path (default: the scene's solver.max_step_mm)")
     ap.add_argument("--volumetric", choices=VOLUMETRIC,
                     help="the element's volumetric term (solver.volumetric; default: the scene's)")
-    ap.add_argument("--out", type=Path, help="meshes and checkpoints, resumable (default runs/convergence[_contact])")
-    ap.add_argument("--docs", type=Path, default=Path("docs"))
-    ap.add_argument("--name", help="the docs files' name (default: convergence[_contact][_VOLUMETRIC], as --out's folder)")
-    ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG",
-                    help="the cases to solve on every level (default: the hard cases, studies.convergence.HARD_CASES)")
-    args = ap.parse_args()
+    ap.add_argument("--out", type=Path, help="meshes, checkpoints and report.md, resumable "
+                    "(default runs/convergence[_contact][_VOLUMETRIC])")
+    ap.add_argument("--name", help="the result's name (default: convergence_glued, convergence_pointwise or "
+                    "convergence_VOLUMETRIC, from the guide and the element)")
+    add_cases_flag(ap)
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()
     scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact", step_mm=args.step_mm,
                         volumetric=args.volumetric)
-    name = "convergence_contact" if scene.effects.guide_contact else "convergence"
-    if scene.solver.volumetric != "pointwise":
-        name += f"_{scene.solver.volumetric}"
-    default_name = name
-    name = args.name or name
-    cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
-    raw = run_study(scene, args.scales, args.out or Path("runs") / default_name, cases)
+    name, folder = names(scene)
+    name, out = args.name or name, args.out or Path("runs") / folder
+    raw = run_study(scene, args.scales, out, tuple(args.cases or HARD_CASES))
     result = analyse(raw)
     seconds = sum(sum(lv["cases"][c]["seconds"] for c in lv["cases"]) for lv in raw["levels"])
-    args.docs.mkdir(parents=True, exist_ok=True)
     small = {"levels": [{k: lv[k] for k in ("scale", "n_tets", "n_nodes")} | {"cases": {
         c: {k: v for k, v in lv["cases"][c].items() if k not in BIG} for c in lv["cases"]}} for lv in raw["levels"]],
         "probes": {k: v for k, v in raw["probes"].items() if k not in BIG}, "analysis": result}
-    (args.docs / f"{name}.json").write_text(json.dumps(_clean(small), allow_nan=False, indent=1) + "\n")
-    command = "python scripts/convergence_study.py --scales " + " ".join(f"{s:g}" for s in args.scales)
-    command += (f" --guide {args.guide}" if args.guide else "") + (f" --step-mm {args.step_mm:g}" if args.step_mm else "")
-    command += (" --cases " + " ".join(args.cases)) if args.cases else ""
-    command += f" --volumetric {args.volumetric}" if args.volumetric else ""
-    command += f" --out {args.out}" if args.out else ""
-    command += f" --name {args.name}" if args.name else ""
-    (args.docs / f"{name}.md").write_text(markdown(_clean(result), command, seconds, image=f"{name}.png"))
-    plot(raw, result, args.docs / f"{name}.png")
+    path = results.write(name, json_ready(small), publish=args.publish)
+    plot(raw, result, path.with_suffix(".png"))
+    (out / "report.md").write_text(markdown(json_ready(result), results.command(), seconds, image=str(path.with_suffix(".png"))))
+    print_bounds(result)
+    print(f"wrote {path}, {path.with_suffix('.png')} and {out / 'report.md'} ({time.perf_counter() - t0:.0f} s this run)")
+    return 0
+
+
+def print_bounds(result: dict) -> None:
+    """Per case and level, the largest bound at the markers, the interior points and the prostate surface."""
     for case, row in result["cases"].items():
         def bound(r: dict, key: str):
             return r[key] if key in r else r["bound_by_scale_mm"][key]
@@ -172,9 +175,3 @@ def main() -> int:
             near, rest = (bound(row[f"surface_{z}"], field) for z in ("near_tip", "rest"))
             print(f"{case}, {level} level: markers max {m:.3f} mm, interior max {i:.3f} mm; prostate surface near tip "
                   f"max {near['max']:.3f} mm, rest max {rest['max']:.3f} mm, mean {rest['mean']:.3f} mm")
-    print(f"wrote {args.docs / (name + '.md')} ({time.perf_counter() - t0:.0f} s this run)")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,7 +1,7 @@
 """How the sweep scales on a Dask cluster: the same paths on a LocalCluster of 1 and 2 single-threaded
 workers, and a projection to N machines.
 
-    python scripts/dask_scaling.py [--scene fem_offline/scenes/default.toml] [--angles 4] [--to-mm 2]
+    python -m studies dask-scaling [--scene fem_offline/scenes/grid_study_base.toml] [--angles 4] [--to-mm 2]
 
 Runs `run_sweep(..., scheduler=...)`, the code path `fem_offline sweep --scheduler tcp://...` takes,
 on a reduced grid (the first `--angles` angles from 0 deg up, displacements up to `--to-mm`) into
@@ -23,13 +23,13 @@ from fem_offline.scene import load_scene
 from fem_offline.sweep import grid, run_sweep
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="fem_offline/scenes/default.toml")
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies dask-scaling", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="fem_offline/scenes/grid_study_base.toml")
     ap.add_argument("--angles", type=int, default=4, help="paths in the reduced grid (angles 0, 1, ... deg)")
     ap.add_argument("--to-mm", type=float, default=2.0)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     from distributed import Client, LocalCluster
 
     full = load_scene(args.scene)
@@ -54,7 +54,3 @@ def main() -> None:
     for cores in (2, 4, 8, 11, 16):
         print(f"  {cores:2d} single-threaded workers (e.g. {math.ceil(cores / 2)} machines like this one): "
               f"{math.ceil(full_paths / cores)} path(s) in a row")
-
-
-if __name__ == "__main__":
-    main()

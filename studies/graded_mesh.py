@@ -1,13 +1,13 @@
 """Meshes graded where the error is, judged against the converged estimate of a grid-convergence study.
 
-    python scripts/graded_mesh.py --sizes 15.6:4:2 15.6:3.08:1.54 [--study runs/convergence_contact_taylor_hood] \
-        [--scales 1.3 1 0.769 0.5917] [--out runs/graded] [--json docs/graded_mesh.json]
+    python -m studies graded-mesh --sizes 15.6:4:2 15.6:3.08:1.54 [--study runs/convergence_contact_taylor_hood] \
+        [--scales 1.3 1 0.769 0.5917] [--out runs/graded] [--publish]
 
 Each --sizes MAX:PROSTATE:GUIDE[:SURFACE] sets the scene's [mesh] sizes (mm): far from everything, at the
 prostate (growing to MAX over 25 mm), around the guide tip, and on the prostate's surface near the tip
 (mesh.surface_near_tip_mm; left out: none). Unlike the study's levels, which scale all three
 together, these refine only near the prostate or the tip. Each mesh solves the hard cases (resumably, every
-load step checkpointed under --out) with the study's physics (default.toml, the tip in contact, the
+load step checkpointed under --out) with the study's physics (grid_study_base.toml, the tip in contact, the
 Taylor-Hood element, 0.5 mm load steps), and is judged as the study judges a level coarser than its
 three: per point, |u_mesh - u_fine| + GCI_fine (studies.convergence.converged_estimate), at the
 study's probe points (its 8 markers, 3 interior points and the 886 prostate-surface nodes of its scale-1
@@ -15,13 +15,13 @@ mesh, so that the surface figure includes interpolation between the graded mesh'
 nodes, as the study's "every node") and at the graded mesh's own prostate-surface nodes and every node.
 Each bound is the mesh's gap to the fine level plus the fine level's own band, so no mesh gets under the
 band: the JSON gives the band's maximum per zone and, at the surface point away from the tip that bounds
-the rest, the two parts. Prints one line per mesh and case.
+the rest, the two parts. Prints one line per mesh and case. The result graded_mesh (runs/results/, or
+docs/results/ with --publish) merges the meshes of every run into that folder's file.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import shlex
 import sys
@@ -35,6 +35,9 @@ from studies.convergence import (HARD_CASES, NEAR_TIP_MM, at_points, case_levels
                                      solve_resumable, study_scene)
 from fem_offline.geometry.meshing import kept_mesh
 from fem_offline.fe.problem import build_problem
+from studies import results
+from studies.options import add_cases_flag, add_scene_flag, add_study_flags, case_text, parser as study_parser
+from tqdm import tqdm
 
 
 def sizes_arg(text: str) -> tuple[float, ...]:
@@ -55,10 +58,10 @@ def tag(sizes) -> str:
 
 
 def command(sizes, args, cases) -> str:
-    """The command that judges one mesh as this run did (the JSON merges meshes of several runs)."""
-    return shlex.join(["python", "scripts/graded_mesh.py", "--sizes", tag(sizes).replace("_", ":"),
+    """The command that judges one mesh as this run did (the file merges meshes of several runs)."""
+    return shlex.join(["python", "-m", "studies", "graded-mesh", "--sizes", tag(sizes).replace("_", ":"),
                        "--scene", str(args.scene), "--study", str(args.study), "--scales", *(f"{s:g}" for s in args.scales),
-                       "--cases", *(f"{d:g}:{b:g}" for d, b in cases), "--json", str(args.json)])
+                       "--cases", *map(case_text, cases)] + (["--publish"] if args.publish else []))
 
 
 def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> dict:
@@ -109,22 +112,20 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = study_parser("python -m studies graded-mesh", __doc__)
     ap.add_argument("--sizes", type=sizes_arg, nargs="+", required=True, metavar="MAX:PROSTATE:GUIDE[:SURFACE]")
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
-    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"))
-    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],
-                    help="the study's levels, coarsest first; per case its three finest solved give the estimate")
-    ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG", help="default: the hard cases")
+    add_scene_flag(ap)
+    add_study_flags(ap)
+    add_cases_flag(ap)
     ap.add_argument("--out", type=Path, default=Path("runs/graded"))
-    ap.add_argument("--json", type=Path, default=Path("docs/graded_mesh.json"))
+    results.add_publish_flag(ap)
     return ap
 
 
-def main() -> int:
-    args = parser().parse_args()
+def main(argv: list[str] | None = None) -> int | None:
+    args = parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
+    cases = tuple(args.cases or HARD_CASES)
     try:
         if not (args.study / "mesh_1.npz").exists():
             raise FileNotFoundError(f"--study: {args.study / 'mesh_1.npz'} not found (run the convergence study first)")
@@ -135,9 +136,10 @@ def main() -> int:
         return 2
     scene = study_scene(args.scene, contact=True, step_mm=0.5, volumetric="taylor_hood")
     t0 = time.perf_counter()
-    previous = json.loads(args.json.read_text()) if args.json.exists() else {}
+    folder = results.DOCS_RESULTS if args.publish else results.RUNS_RESULTS
+    previous = results.read("graded_mesh", folder) if (folder / "graded_mesh.json").exists() else {}
     meshes = {m["tag"]: m for m in previous.get("meshes", [])}
-    for sizes in args.sizes:
+    for sizes in tqdm(args.sizes, desc="graded meshes", unit="mesh"):
         row = judge(scene, sizes, args.study, args.scales, cases, args.out)
         meshes[tag(sizes)] = {"tag": tag(sizes), "command": command(sizes, args, cases), **row}
         for case, r in row["cases"].items():
@@ -153,11 +155,6 @@ def main() -> int:
               # the file merges runs: each mesh names the command that judged it, and these are all of them
               "commands": list(dict.fromkeys(m["command"] for m in ordered if "command" in m)),
               "meshes": ordered}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=1) + "\n")
-    print(f"wrote {args.json} ({time.perf_counter() - t0:.0f} s this run)")
+    path = results.write("graded_mesh", result, publish=args.publish)
+    print(f"wrote {path} ({time.perf_counter() - t0:.0f} s this run)")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,13 +1,13 @@
 """The patient pipeline's FE against the converged estimate: the default phantom as a label map.
 
-    python scripts/labelmap_truth.py [--spacing-mm 1] [--mesher cgal] [--facet-distance-voxels 0.5 1] [--volumetric E] \\
+    python -m studies labelmap-truth [--spacing-mm 1] [--mesher cgal] [--facet-distance-voxels 0.5 1] [--volumetric E] \\
         [--work runs/labelmap_truth] [--study runs/convergence_contact_taylor_hood] [--scales 1.3 1 0.769 0.5917] \\
-        [--json docs/labelmap_truth.json]
+        [--publish]
 
 A patient model's FE error has two parts that a grid-convergence study of the phantom does not see:
 the voxels (the tissue surfaces are a label map's staircase, smoothed) and the label-map mesher's
 tets. This measures both at once where the converged answer is known. The default phantom is
-voxelised (scripts/make_labelmap.py's generator), meshed from its labels with the patient defaults
+voxelised (`python -m studies make-labelmap`'s generator), meshed from its labels with the patient defaults
 (fem_offline/scenes/patient.toml: the default's mesh sizes, physics and element) and solved at the
 grid-convergence study's hardest case (10 mm, beta = 0, from rest in 0.5 mm steps as the study). Its
 displacement is compared with the converged estimate of the Taylor-Hood study (`make fe-error-taylor-hood`;
@@ -18,17 +18,27 @@ point; the same bound for the phantom's own gmsh mesh at the same sizes (the stu
 printed beside it. --volumetric solves with another element than patient.toml's (solver.volumetric). Rows
 are kept per voxel size, mesher, facet distance and element; one measured again replaces the old row (each
 row names the study it was judged against: rows of earlier rounds, against the pointwise element's study).
+The phantom is grid_study_base.toml's (the study's scene). The result labelmap_truth goes to runs/results/;
+with --publish to docs/results/ and to the pipeline's package copy, pipeline/data/labelmap_fe_error.json
+(the patient build's default FE estimate), so that the two never differ.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
+import shutil
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
+
+from contracts.cli import number
+from studies import results
+from studies.options import GRID_STUDY_SCENE, SCENES, add_study_flags
+
+PACKAGE_COPY = results.ROOT / "pipeline" / "data" / "labelmap_fe_error.json"
 
 CASE = (10.0, 0.0)
 CASE_KEY = "10 mm, 0 deg"
@@ -42,8 +52,7 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
     from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
     from fem_offline.scene import load_scene
 
-    root = Path(__file__).resolve().parents[1] / "fem_offline" / "scenes"
-    phantom = load_scene(root / "default.toml")
+    phantom = load_scene(GRID_STUDY_SCENE)
     folder.mkdir(parents=True, exist_ok=True)
     labels = folder / "labels.nii.gz"
     if not labels.exists():
@@ -52,30 +61,27 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
     data["label_map"]["mesher"] = mesher
     if mesher == "cgal":
         data["label_map"]["facet_distance_voxels"] = facet_voxels
-    base = load_scene(root / "patient.toml")  # the patient build's sweep and solver; the study's 0.5 mm steps
+    base = load_scene(SCENES / "patient.toml")  # the patient build's sweep and solver; the study's 0.5 mm steps
     data["sweep"] = base.sweep.model_dump(mode="json")
     data["solver"] = base.solver.model_dump(mode="json") | {"max_step_mm": 0.5, "volumetric": volumetric}
     (folder / "scene.toml").write_text(tomli_w.dumps(data))
     return load_scene(folder / "scene.toml")
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int | None:
     from fem_offline.scene import VOLUMETRIC
 
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--spacing-mm", type=float, nargs="+", default=[1.0])
+    ap = argparse.ArgumentParser(prog="python -m studies labelmap-truth", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), nargs="+", default=[1.0])
     ap.add_argument("--mesher", default="cgal", choices=("cgal", "tetgen"))
-    ap.add_argument("--facet-distance-voxels", type=float, nargs="+", default=[0.5],
+    ap.add_argument("--facet-distance-voxels", type=number("--facet-distance-voxels", minimum=0.0), nargs="+", default=[0.5],
                     help="CGAL's label_map.facet_distance_voxels, one run each")
     ap.add_argument("--volumetric", choices=VOLUMETRIC,
                     help="the element (solver.volumetric; default: patient.toml's)")
     ap.add_argument("--work", type=Path, default=Path("runs/labelmap_truth"))
-    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),
-                    help="the Taylor-Hood contact grid-convergence study's folder (meshes and checkpoints)")
-    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],
-                    help="its levels, coarsest first; the three finest that solved the case give the estimate")
-    ap.add_argument("--json", type=Path, default=Path("docs/labelmap_truth.json"), help="rows merge into it by voxel, mesher, facets, element")
-    args = ap.parse_args()
+    add_study_flags(ap)
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
 
     from contracts.mesh import read_mesh, write_mesh
@@ -91,7 +97,7 @@ def main() -> int:
         used = case_levels(args.study, args.scales, CASE)
     except ValueError as exc:
         raise SystemExit(f"--study: {exc}") from None
-    default = load_scene(Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "default.toml")
+    default = load_scene(GRID_STUDY_SCENE)
     # the study's probe points, taken from its scale-1 mesh (default.toml's sizes, as patient.toml's):
     # the 8 markers, the 3 interior points, its prostate-surface nodes; and the order of the case from every node
     default_mesh = read_mesh(args.study / "mesh_1.npz")
@@ -107,10 +113,9 @@ def main() -> int:
     out = {"case": CASE_KEY, "rows": []}
     reference = {"study": str(args.study), "levels": used, "finest_level_tets": fine_tets,
                  "phantom_mesh_bound_mm": medium_bound}
-    volumetric = args.volumetric or load_scene(
-        Path(__file__).resolve().parents[1] / "fem_offline" / "scenes" / "patient.toml").solver.volumetric
+    volumetric = args.volumetric or load_scene(SCENES / "patient.toml").solver.volumetric
     runs = [(s, f) for s in args.spacing_mm for f in (args.facet_distance_voxels if args.mesher == "cgal" else [None])]
-    for spacing, facet in runs:
+    for spacing, facet in tqdm(runs, desc="label maps", unit="run"):
         # a folder per element: a path's checkpoints belong to its physics (the pointwise rows' folders keep their names)
         folder = args.work / (f"{spacing:g}mm_{args.mesher}" + (f"_facet{facet:g}" if facet else "")
                               + ("" if volumetric == "pointwise" else f"_{volumetric}"))
@@ -139,15 +144,14 @@ def main() -> int:
         print(f"  mesh {'kept' if mesh_s is None else f'{mesh_s:.1f} s'}, solve {seconds:.0f} s", flush=True)
         out["rows"].append(result)
     key = lambda r: (r["spacing_mm"], r["mesher"], r["facet_distance_voxels"], r["volumetric"])  # noqa: E731
-    if args.json.exists():  # rows of earlier runs (other voxels, meshers, facets, elements) are kept
+    folder = results.DOCS_RESULTS if args.publish else results.RUNS_RESULTS
+    if (folder / "labelmap_truth.json").exists():  # rows of earlier runs (other voxels, meshers, facets, elements) are kept
         done = {key(r) for r in out["rows"]}
-        out["rows"] = [r for r in json.loads(args.json.read_text())["rows"] if key(r) not in done] + out["rows"]
+        out["rows"] = [r for r in results.read("labelmap_truth", folder)["rows"] if key(r) not in done] + out["rows"]
     out["rows"].sort(key=lambda r: (r["volumetric"] != "taylor_hood", r["mesher"], -r["spacing_mm"],
                                     -(r["facet_distance_voxels"] or 0)))
-    args.json.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {args.json}")
+    path = results.write("labelmap_truth", out, publish=args.publish)
+    if args.publish:  # the patient build reads the package copy: one file, never two versions
+        shutil.copyfile(path, PACKAGE_COPY)
+    print(f"wrote {path}" + (f" and {PACKAGE_COPY}" if args.publish else ""))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

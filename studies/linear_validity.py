@@ -1,45 +1,34 @@
-"""Up to which guide displacement the linear model stays a deformation -> docs/linear_validity.{json,md}.
+"""Up to which guide displacement the linear model stays a deformation (result linear_validity).
 
-    python scripts/linear_validity.py [--scene fem_offline/scenes/default.toml] [--sweep runs/default_conv] [--docs docs]
+    python -m studies linear-validity [--scene fem_offline/scenes/default.toml] [--sweep runs/default] [--publish]
 
 On the scene's mesh (the nonlinear sweep's mesh.npz when --sweep is given, so both models are on
 the same tets; otherwise the scene is meshed), computes the linear model's min det(I + grad u) and
 its number of inverted tets at every (displacement, angle) of the scene's sweep grid, the exact
 first crossing of det F = 0 per angle, and the tissue under the guide tip along its axis. With
 --sweep it sets beside them the min det F the nonlinear snapshots recorded. The numbers come from
-fem_offline/fe/validity.py; this script only lays them out. Takes seconds on the default mesh.
+fem_offline/fe/validity.py; this command only lays them out (as JSON, with the Markdown report under
+"report_md"). Takes seconds on the default mesh.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from contracts.cli import number
 from contracts.mesh import read_mesh
 from contracts.sweep import MESH_FILE, read_manifest
 from fem_offline.geometry.meshing import mesh_for_scene
 from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
+from studies import results
+from studies.options import SERVED_SCENE, add_scene_flag, json_ready
 from fem_offline.fe.validity import (PROBE_INTORDER, bounded_min_det_f, det_f_curves, linear_bound_table, points_per_tet,
                                   probed_min_det_f, recorded_min_det_f, table_validity, tissue_along_axis, valid_up_to)
-
-
-def _round(x, digits: int = 4):
-    """JSON-ready and short: arrays to lists, floats to `digits` significant digits, NaN to null."""
-    if isinstance(x, dict):
-        return {k: _round(v, digits) for k, v in x.items()}
-    if isinstance(x, (list, tuple, np.ndarray)):
-        return [_round(v, digits) for v in (x.tolist() if isinstance(x, np.ndarray) else x)]
-    if isinstance(x, (float, np.floating)):
-        return float(f"{x:.{digits}g}") if np.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 def _nonlinear(folder: Path, scene):
@@ -81,7 +70,6 @@ def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
     dense = det_f_curves(problem, grid.displacements_mm, grid.angles_deg, intorder=intorder)
     everywhere = linear_bound_table(problem, grid.displacements_mm, grid.angles_deg)
     out = {
-        "command": "python " + " ".join(sys.argv),
         "scene": scene.name, "scene_sha256": scene.sha256(),
         "mesh": {"n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes),
                  "source": str(sweep / MESH_FILE) if sweep is not None else "meshed from the scene"},
@@ -111,7 +99,7 @@ def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
         for row, nl, nl_dense, nl_bound in zip(out["angles"], recorded, probed, bounded):
             row["nonlinear_min_det_f"], row["nonlinear_min_det_f_at_max"] = nl, nl[-1]
             row["nonlinear_min_det_f_denser"], row["nonlinear_min_det_f_bound"] = nl_dense, nl_bound
-    return _round(out)
+    return json_ready(out, digits=4)
 
 
 def _span(first_mm) -> str:
@@ -140,7 +128,7 @@ def markdown(s: dict) -> str:
         "",
         f"Scene `{s['scene']}`, {s['mesh']['n_tets']:,} tets ({s['mesh']['source']}), the sweep's grid "
         f"({len(s['displacements_mm'])} displacements every {step:g} mm × {len(s['angles_deg'])} angles "
-        f"{s['angles_deg'][0]:g}..{s['angles_deg'][-1]:g}°). Command: `{s['command']}`.",
+        f"{s['angles_deg'][0]:g}..{s['angles_deg'][-1]:g}°). ",
         "",
         f"**The linear (small-strain) model with the glued guide patch (the superposable one; with the tip in contact the linear model is load-stepped, fem_offline/fe/contact.py) stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
         f"up to {lin['valid_up_to_mm']:g} mm of guide push.** Its first element turns inside out at "
@@ -195,19 +183,17 @@ def markdown(s: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies linear-validity", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_flag(ap, SERVED_SCENE, "the scene (default: the served model's)")
     ap.add_argument("--sweep", type=Path, help="the scene's nonlinear sweep folder (its mesh and recorded min det F)")
-    ap.add_argument("--docs", type=Path, default=Path("docs"), help="where linear_validity.{json,md} go")
-    ap.add_argument("--intorder", type=int, default=PROBE_INTORDER, help="a denser quadrature rule to probe det F "
+    results.add_publish_flag(ap)
+    ap.add_argument("--intorder", type=number("--intorder", int, minimum=1), default=PROBE_INTORDER, help="a denser quadrature rule to probe det F "
                     f"between the solver's points (default {PROBE_INTORDER}, the sweep's probe: 11 points per tet; the "
                     "solver's rule has 4)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     s = study(args.scene, args.sweep, args.intorder)
-    args.docs.mkdir(parents=True, exist_ok=True)
-    (args.docs / "linear_validity.json").write_text(json.dumps(s, indent=1) + "\n")
-    (args.docs / "linear_validity.md").write_text(markdown(s))
+    path = results.write("linear_validity", {**s, "report_md": markdown(s)}, publish=args.publish)
     lin, worst = s["linear"], min(s["angles"], key=lambda r: r["min_det_f_at_max"])
     line = (f"linear model valid up to {lin['valid_up_to_mm']:g} mm at every angle (first inversion "
             f"{lin['first_inversion_mm']:g} mm); at {s['displacements_mm'][-1]:g} mm min det F "
@@ -226,8 +212,4 @@ def main() -> None:
     print(line)
     print(f"as a linear sweep records it (any of the three): {sw['n_inverted']} of {sw['n_snapshots']} snapshots "
           f"inverted, the first {_span(sw['first_inverted_mm'])}, valid up to {sw['valid_up_to_mm']:g} mm")
-    print(f"wrote {args.docs / 'linear_validity.json'} and {args.docs / 'linear_validity.md'}")
-
-
-if __name__ == "__main__":
-    main()
+    print(f"wrote {path}")

@@ -1,9 +1,8 @@
 """Why the grid-convergence study's fifth level moved the markers outward: volumetric locking or not.
 
-    MKL_NUM_THREADS=2 python scripts/locking_check.py [--scales 1.3 1 0.769 0.5917 0.455]
+    MKL_NUM_THREADS=2 python -m studies locking-check [--scales 1.3 1 0.769 0.5917 0.455]
         [--poisson 0.495 0.45] [--case 2 0] [--volumetric pointwise] [--rtol 1e-8] [--contact-tol-mm 0.0005]
-        [--meshes runs/convergence_resolve] [--out runs/locking]
-        [--json docs/locking_check.json]
+        [--meshes runs/convergence_resolve] [--out runs/locking] [--publish]
 
 The nonlinear study's markers grow with every refinement (the finer mesh is softer), and the fifth
 level moved them more than the fourth. Volumetric locking of the P2 tets at nu = 0.495 would do
@@ -24,7 +23,8 @@ more tets) and each tissue's median tet edge, to see whether every part of the m
 pressure per tissue (P2/P1, fem_offline/fe/mixed.py), one that keeps the P2 element's order.
 
 Each (nu, level) result is written to --out as it finishes; a rerun resumes. The table and the
-GCI of the three finest levels per nu go to --json.
+GCI of the three finest levels per nu are the result locking_check_<volumetric> (with _nu045 when
+--poisson is 0.45 alone, say), in runs/results/ or, with --publish, docs/results/.
 """
 
 from __future__ import annotations
@@ -45,9 +45,13 @@ from fem_offline.geometry.meshing import mesh_for_scene
 from fem_offline.fe.problem import build_problem
 from fem_offline.scene import VOLUMETRIC, Scene
 
-from solver_tolerance import with_tolerances  # scripts/ is on sys.path when run as a script
+from contracts.cli import number
+from studies import results
+from studies.options import add_scales_flag, add_scene_flag, with_tolerances
+from tqdm import tqdm
 
 log = logging.getLogger("locking_check")
+NOMINAL_NU = 0.495  # the scene's
 
 
 def variant(scene: Scene, poisson: float, volumetric: str) -> Scene:
@@ -116,22 +120,28 @@ def analyse(rows: list[dict], scales: list[float]) -> dict:
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="fem_offline/scenes/default.toml")
-    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917, 0.455])
-    ap.add_argument("--poisson", type=float, nargs="+", default=[0.495, 0.45])
-    ap.add_argument("--case", type=float, nargs=2, default=[2.0, 0.0], metavar=("D_MM", "BETA_DEG"))
+def result_name(volumetric: str, poisson: list[float]) -> str:
+    """locking_check_VOLUMETRIC, with _nuNNN (0.45: _nu045) when the scene's nu 0.495 is not among --poisson."""
+    return f"locking_check_{volumetric}" + ("" if NOMINAL_NU in poisson else "".join(f"_nu{nu:g}".replace(".", "") for nu in poisson))
+
+
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies locking-check", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_flag(ap)
+    add_scales_flag(ap, [1.3, 1.0, 0.769, 0.5917, 0.455], "levels, coarsest first")
+    ap.add_argument("--poisson", type=number("--poisson", minimum=0.0), nargs="+", default=[NOMINAL_NU, 0.45])
+    ap.add_argument("--case", type=number("--case"), nargs=2, default=[2.0, 0.0], metavar=("D_MM", "BETA_DEG"))
     ap.add_argument("--volumetric", choices=VOLUMETRIC, default="pointwise",
                     help="the element's volumetric term (solver.volumetric): the P2 element as it is, per tet, "
                          "or a P1 pressure (Taylor-Hood)")
-    ap.add_argument("--rtol", type=float, default=1e-8)
-    ap.add_argument("--contact-tol-mm", type=float, default=0.0005)
+    ap.add_argument("--rtol", type=number("--rtol", minimum=0.0), default=1e-8)
+    ap.add_argument("--contact-tol-mm", type=number("--contact-tol-mm", minimum=0.0), default=0.0005)
     ap.add_argument("--meshes", type=Path, default=Path("runs/convergence_resolve"),
                     help="the convergence study's folder: its level meshes are reused")
     ap.add_argument("--out", type=Path, default=Path("runs/locking"))
-    ap.add_argument("--json", type=Path, default=Path("docs/locking_check.json"))
-    args = ap.parse_args()
+    ap.add_argument("--name", help="the result's name (default: locking_check_VOLUMETRIC, _nuNNN for one nu other than 0.495)")
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     if sorted(args.scales, reverse=True) != args.scales:
         ap.error("--scales: give them coarsest first (decreasing)")
@@ -148,7 +158,7 @@ def main() -> None:
     probes = probe_points(reference, base)
     for nu in args.poisson:
         scene = variant(base, nu, args.volumetric)
-        for s in args.scales:
+        for s in tqdm(args.scales, desc=f"nu {nu:g}", unit="level"):
             if any(r["poisson"] == nu and r["scale"] == s for r in rows):
                 continue
             mesh = meshes[s]
@@ -168,13 +178,11 @@ def main() -> None:
             entry["tets_ratio_to_next"] = round(len(meshes[b].tets) / len(meshes[a].tets), 3)
             entry["nominal_ratio_cubed"] = round((a / b) ** 3, 3)
         family.append(entry)
-    result = {"command": "python scripts/locking_check.py " + " ".join(
-        ["--scales", *map(lambda s: f"{s:g}", args.scales), "--poisson", *map(lambda s: f"{s:g}", args.poisson),
-         "--case", f"{d_mm:g}", f"{beta:g}", "--volumetric", args.volumetric, "--rtol", f"{args.rtol:g}", "--contact-tol-mm", f"{args.contact_tol_mm:g}"]),
+    result = {
         "case": {"displacement_mm": d_mm, "angle_deg": beta, "physics": "small strain, tip in frictionless contact",
                  "volumetric": args.volumetric},
         "mesh_family": family, "by_poisson": analyse(rows, args.scales), "rows": rows}
-    args.json.write_text(json.dumps(result, indent=1))
+    path = results.write(args.name or result_name(args.volumetric, args.poisson), result, publish=args.publish)
     for nu, r in result["by_poisson"].items():
         print(f"nu {nu}: marker max |change| to the next finer level {r['change_max_mm']} mm "
               f"(signed mean {r['change_signed_mean_mm']}); kinds {[sorted(set(t['kinds'])) for t in r['triples']]}")
@@ -182,7 +190,5 @@ def main() -> None:
         print(f"sizes x {f['scale']:g}: {f['n_tets']:,} tets; ratio to next {f.get('tets_ratio_to_next')} "
               f"(r^3 {f.get('nominal_ratio_cubed')}); median edge "
               + ", ".join(f"{k} {v['median_edge_mm']:.2f}" for k, v in f["tissues"].items()))
-
-
-if __name__ == "__main__":
-    main()
+    print(f"wrote {path}")
+    return 0

@@ -1,6 +1,6 @@
 """How far the default mesh's answer is from a mesh with every size halved, in mm at the prostate.
 
-    python scripts/mesh_convergence.py [--scene fem_offline/scenes/default.toml] [--displacement-mm 10] [--angle-deg 10]
+    python -m studies mesh-convergence [--scene fem_offline/scenes/grid_study_base.toml] [--displacement-mm 10] [--angle-deg 10]
 
 Solves the same case on both meshes (linear and nonlinear) and evaluates the fine P2 solution at
 the coarse mesh's prostate-surface nodes (interpolation inside the containing fine tet).
@@ -28,14 +28,14 @@ def _solve(scene, mesh, nonlinear: bool, d: float, beta: float, step_mm: float):
     return u, time.perf_counter() - t0
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/default.toml"))
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies mesh-convergence", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/grid_study_base.toml"))
     ap.add_argument("--displacement-mm", type=float, default=10.0)
     ap.add_argument("--angle-deg", type=float, default=10.0)
     ap.add_argument("--step-mm", type=float, default=0.5, help="load step (hyperelastic: the end state does not depend on it)")
     ap.add_argument("--linear-only", action="store_true")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     coarse_scene = load_scene(args.scene)
     sizes = coarse_scene.mesh
     fine_scene = coarse_scene.model_copy(update={"mesh": sizes.model_copy(update={
@@ -53,7 +53,3 @@ def main() -> None:
         print(f"{'nonlinear' if nonlinear else 'linear'} {args.displacement_mm} mm, beta {args.angle_deg} deg: prostate surface "
               f"|u_coarse - u_fine| max {err.max():.3f} mm, mean {err.mean():.3f} mm (peak prostate motion {peak:.2f} mm); "
               f"solve {tc:.0f} s coarse, {tf:.0f} s fine")
-
-
-if __name__ == "__main__":
-    main()

@@ -2,7 +2,7 @@
 
 The phantom's exact geometry is the reference: tissue volumes from `reference_volumes`, and the
 linear answer (guide glued to its patch) at the gmsh phantom mesh's 8 markers for one push (10 mm, beta = 0).
-scripts/compare_meshers.py prints these and writes docs/meshers.json.
+`python -m studies compare-meshers` prints these and writes the result meshers (runs/results/, or docs/results/ with --publish).
 """
 
 from __future__ import annotations

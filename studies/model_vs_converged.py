@@ -1,9 +1,9 @@
 """A served model against the converged estimate of another element's grid-convergence study.
 
-    python scripts/model_vs_converged.py --model models/default --study runs/convergence_contact_taylor_hood \
-        --scales 1.3 1 0.769 0.5917 [--json docs/fe_error_default.json]
+    python -m studies model-vs-converged --model models/default --study runs/convergence_contact_taylor_hood \
+        --scales 1.3 1 0.769 0.5917 [--name fe_error_default] [--publish]
 
-The grid-convergence study (scripts/convergence_study.py, here with solver.volumetric = "taylor_hood")
+The grid-convergence study (`python -m studies convergence-study`, here with solver.volumetric = "taylor_hood")
 keeps each level's mesh and each case's solution under --study. Per case, the three finest levels that solved it
 (a case the finest level has not reached yet is judged on the three below), interpolated at
 the model mesh's own nodes, give at every node the fine level's answer u1 and its GCI band (Roache,
@@ -19,21 +19,24 @@ stated end-to-end bound (surrogate + FE) is never below what was measured.
 
 Per region of the model (markers, prostate surface, every node; the surface within 8 mm of the tip
 apart) and per case (the hard cases the study solved) it writes the max of e, of |m - u1| and of the
-band, and the max over the cases.
+band, and the max over the cases: the result fe_error_default (--name), in runs/results/ or, with
+--publish, docs/results/, which `python -m training restamp --fe-error` reads.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from contracts.mesh import read_mesh
 from contracts.model import onnx_session, read_model_folder
+from studies import results
 from studies.convergence import HARD_CASES, NEAR_TIP_MM, converged_estimate
+from studies.options import add_cases_flag, add_study_flags
 
 
 def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
@@ -47,7 +50,7 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
                "prostate_surface_near_tip": surface[near], "prostate_surface_rest": surface[~near],
                "all_nodes": np.arange(len(mesh.nodes))}
     out = {"cases": {}}
-    for case in cases:
+    for case in tqdm(cases, desc="cases", unit="case"):
         used, u1, band, order = converged_estimate(study, scales, case, mesh.nodes)
         m = session.run(None, {"guide": np.array([case], np.float32)})[0][0].astype(np.float64)
         gap = np.linalg.norm(m - u1, axis=1)
@@ -64,20 +67,18 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
     return out
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies model-vs-converged", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=Path("models/default"))
-    ap.add_argument("--study", type=Path, default=Path("runs/convergence_contact_taylor_hood"),
-                    help="a convergence study's folder (meshes and path checkpoints)")
-    ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.769, 0.5917],
-                    help="its levels, coarsest first; the three finest give the estimate (as the study's analysis)")
-    ap.add_argument("--cases", nargs="+", metavar="D_MM:BETA_DEG", help="default: the hard cases")
+    add_study_flags(ap)
+    add_cases_flag(ap)
     ap.add_argument("--element", default="taylor_hood", help="the study's solver.volumetric, for the record")
-    ap.add_argument("--json", type=Path, default=Path("docs/fe_error_default.json"))
-    args = ap.parse_args()
+    ap.add_argument("--name", default="fe_error_default", help="the result's name (default fe_error_default)")
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
     if len(args.scales) < 3:
         ap.error(f"--scales: need three levels at least, got {len(args.scales)}")
-    cases = HARD_CASES if not args.cases else tuple(tuple(float(x) for x in c.split(":")) for c in args.cases)
+    cases = tuple(args.cases or HARD_CASES)
     try:
         result = compare(args.model, args.study, args.scales, cases)
     except (ValueError, FileNotFoundError) as exc:
@@ -89,12 +90,8 @@ def main() -> int:
         levels.append({"scale": s, "n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes)})
     model_mesh = read_model_folder(args.model).mesh
     result = {"kind": "model_vs_converged", "model": str(args.model), "element": args.element, "levels": levels,
-              "model_mesh": {"n_tets": len(model_mesh.tets), "n_nodes": len(model_mesh.nodes)},
-              "command": "python scripts/model_vs_converged.py --model {} --study {} --scales {}{}".format(
-                  args.model, args.study, " ".join(f"{s:g}" for s in args.scales),
-                  (" --cases " + " ".join(args.cases)) if args.cases else ""), **result}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=1) + "\n")
+              "model_mesh": {"n_tets": len(model_mesh.tets), "n_nodes": len(model_mesh.nodes)}, **result}
+    path = results.write(args.name, result, publish=args.publish)
     for case, row in result["cases"].items():
         r = row["regions"]
         print(f"{case} (levels x{' x'.join(f'{s:g}' for s in row['scales'])}): model vs converged ({args.element}), max |m - u_fine| + GCI: markers {r['markers']['end_to_end_max_mm']:.3f} mm "
@@ -103,9 +100,5 @@ def main() -> int:
               f"rest {r['prostate_surface_rest']['end_to_end_max_mm']:.3f}); every node {r['all_nodes']['end_to_end_max_mm']:.3f}; "
               f"mean |u| {row['mean_kind']}")
     print("max over the cases: " + ", ".join(f"{k} {v:.3f} mm" for k, v in result["max_over_cases"].items()))
-    print(f"wrote {args.json}")
+    print(f"wrote {path}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,7 +1,7 @@
 """Snapshots on the paper-scale mesh, interpolated from the default sweep, to time a paper-scale decoder.
 
     python -m fem_offline mesh --scene fem_offline/scenes/paper_scale.toml --out runs/paper/mesh.npz
-    python scripts/paper_scale_snapshots.py --sweep runs/default --mesh runs/paper/mesh.npz \
+    python -m studies paper-scale-snapshots --sweep runs/default --mesh runs/paper/mesh.npz \
         --out runs/paper/sweep_interp --angle-stride 2
     python -m training fit --snapshots runs/paper/sweep_interp --out runs/paper/model --rank 32 \
         --test-case 7.75/-4 --test-case 2.5/2
@@ -17,7 +17,6 @@ take the value at their projection onto the nearest coarse tet (`interpolation_m
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -29,13 +28,13 @@ from contracts.mesh import write_mesh
 from fem_offline.geometry.mesh import load
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies paper-scale-snapshots", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
     ap.add_argument("--mesh", type=Path, required=True, help="the fine mesh (.npz, or any format fem_offline mesh writes)")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--angle-stride", type=int, default=2, help="keep every n-th angle (default 2: 11 x 40 = 440)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
 
     source = folder.read_sweep(args.sweep)
     coarse, fine = source.mesh, load(args.mesh)
@@ -62,7 +61,3 @@ def main() -> int:
         "n_expected": len(rows), "n_done": len(rows), "n_mirrored": 0, "errors": [], "snapshots": rows}))
     print(f"{args.out}: {len(rows)} snapshots on {len(fine.nodes)} nodes, {len(fine.tets)} tets")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,7 @@
 """What a coarser sweep costs the surrogate: fit on every k-th angle and l-th displacement of one sweep.
 
-    python scripts/sweep_density.py --sweep runs/default_v6 --offgrid runs/default_v6/offgrid [--out docs/sweep_density.json]
-        [--grids 1:1 2:1 4:1 1:2 2:2 4:2] [--configs 64:160:1 32:60:1]
+    python -m studies sweep-density --sweep runs/default_v6 --offgrid runs/default_v6/offgrid [--publish]
+        [--grids 1:1 2:1 4:1 1:2 2:2 4:2] [--configs 64:160:1 32:60:1] [--name sweep_density_patient]
 
 A patient build must finish in 30 min (issue #14), and the sweep is most of that time. Its cost is
 paths (one per solved angle) x load steps per path, so a sweep with every 2nd angle and a 0.5 mm step
@@ -18,17 +18,19 @@ own discretisation error adds to them unchanged (Grid convergence, README).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
 
-os.environ.setdefault("MKL_NUM_THREADS", "1")  # reproducible fits (scripts/tradeoff.py says why)
+os.environ.setdefault("MKL_NUM_THREADS", "1")  # reproducible fits (studies/tradeoff.py says why)
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
+from contracts.cli import number  # noqa: E402
 from contracts.model import FitOptions, onnx_session  # noqa: E402
+from studies import results  # noqa: E402
 from training.fit import fit_surrogate, region_errors, training_set  # noqa: E402
 from training.snapshots import read_offgrid, read_sweep, sub_grid, valid_part  # noqa: E402
 
@@ -36,17 +38,18 @@ DEFAULT = {"rank": 64, "width": 160, "depth": 1}  # models/default
 GRIDS = ((1, 1), (2, 1), (4, 1), (1, 2), (2, 2), (4, 2))  # (angle stride, displacement stride)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies sweep-density", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
     ap.add_argument("--offgrid", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=Path("docs/sweep_density.json"))
-    ap.add_argument("--seeds", type=int, default=2, help="fits per grid (seeds 0..n-1); the worst is reported")
+    ap.add_argument("--name", default="sweep_density", help="the result's name (sweep_density_patient for a patient's sweep)")
+    results.add_publish_flag(ap)
+    ap.add_argument("--seeds", type=number("--seeds", int, minimum=1), default=2, help="fits per grid (seeds 0..n-1); the worst is reported")
     ap.add_argument("--grids", nargs="+", default=[f"{a}:{s}" for a, s in GRIDS],
                     help="angle_stride:displacement_stride sub-grids of the sweep's grid")
     ap.add_argument("--configs", nargs="+", default=["{rank}:{width}:{depth}".format(**DEFAULT)],
                     help="rank:width:depth of the fits (default: models/default's)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     try:
         grids = [tuple(int(v) for v in g.split(":")) for g in args.grids]
         configs = [dict(zip(("rank", "width", "depth"), (int(v) for v in c.split(":")))) for c in args.configs]
@@ -66,7 +69,7 @@ def main() -> int:
     print(f"{args.sweep}: {len(data)} snapshots ({n_disps} displacements x {n_angles} angles), {len(sweep.mesh.nodes)} "
           f"nodes; {len(og_in)} off-grid cases", flush=True)
     rows = []
-    for (a, s), config in ((g, c) for g in grids for c in configs):
+    for (a, s), config in tqdm([(g, c) for g in grids for c in configs], desc="fits", unit="grid"):
         mask = sub_grid(data.inputs, a, s) & (data.inputs[:, 0] > 0)
         left = ~mask & (data.inputs[:, 0] > 0)
         _, train_in, train_rows = training_set(data.select(mask), ())  # nothing held out: the rest of the grid is
@@ -98,11 +101,7 @@ def main() -> int:
               f"{og['all_nodes']:.4f} mm" + (f"; left-out grid markers {lo['markers']:.4f} / surface "
                                              f"{lo['prostate_surface']:.4f} / all {lo['all_nodes']:.4f} mm" if lo else ""),
               flush=True)
-    args.out.write_text(json.dumps({"sweep": str(args.sweep), "offgrid": str(args.offgrid), "n_offgrid": len(og_in),
-                                    "seeds": args.seeds, "configs": configs, "rows": rows}, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    path = results.write(args.name, {"sweep": str(args.sweep), "offgrid": str(args.offgrid), "n_offgrid": len(og_in),
+                                     "seeds": args.seeds, "configs": configs, "rows": rows}, publish=args.publish)
+    print(f"wrote {path}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,8 +1,12 @@
-"""What accuracy costs in time, end to end: mesh level x PCA rank x network on one Pareto front -> docs/tradeoff.{md,png}.
+"""What accuracy costs in time, end to end: mesh level x PCA rank x network on one Pareto front (result tradeoff).
 
-    python scripts/tradeoff.py --sweep runs/default_graded --offgrid runs/default_graded/offgrid \\
-        --convergence docs/convergence_contact_taylor_hood_4levels.json --graded docs/graded_mesh.json \\
-        --mesh-check runs/tiny_mesh_check [--out docs]
+    python -m studies tradeoff --sweep runs/default_graded --offgrid runs/default_graded/offgrid \\
+        --convergence docs/results/convergence_taylor_hood.json --graded docs/results/graded_mesh.json \\
+        --mesh-check runs/tiny_mesh_check [--publish]
+
+The result tradeoff (runs/results/, or docs/results/ with --publish) holds every point, the levels,
+the build estimates and the mesh check, with the Markdown report under "report_md" (the docs page
+renders it) and the plot beside it as tradeoff.png.
 
 Every configuration (mesh level L of the convergence study or a graded mesh judged against it, PCA rank r,
 network w) is one point:
@@ -29,8 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
-import sys
 import time
 from pathlib import Path
 
@@ -42,7 +44,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from contracts.cli import number  # noqa: E402
 from contracts.model import onnx_session, read_manifest  # noqa: E402
+from studies import results  # noqa: E402
+from studies.options import json_ready  # noqa: E402
 from training.fit import PAPER_TEST_CASES, FitOptions, fit_surrogate, region_errors, training_set  # noqa: E402
 from training.snapshots import read_offgrid, read_sweep, valid_part  # noqa: E402
 from training.tradeoff import (decode_seconds, end_to_end, graded_levels, level_errors, makespan,  # noqa: E402
@@ -276,8 +281,8 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
     speedup = float(f"{fe_query['median'] / d['latency_s']:.2g}")  # two significant digits: the decode time is noisy
     lines = [
         "# Accuracy vs time, end to end", "",
-        f"Written by `{meta['command']}` in {meta['seconds']:.0f} s on this machine (2 cores; latencies are medians, "
-        "and this machine is shared, so differences of about 0.01 ms are noise).", "",
+        f"Measured in {meta['seconds']:.0f} s (latencies are medians; on a shared machine differences of about "
+        "0.01 ms are noise).", "",
         "Each point is a configuration: a mesh level L of the grid-convergence study "
         f"([{meta['convergence']}]({Path(meta['convergence']).name})) or a mesh graded where the error is, judged "
         f"against the same study ({meta['graded']}), a PCA rank and a network. Its error is **end "
@@ -289,7 +294,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate surface "
         "and every node only as summaries of the three analysed levels (a coarser level's pointwise bound, max over "
         "the points; studies analysed before the coarse bound was stored give the two finest), so the surface panel "
-        "has those levels only, and every node the same (table). A graded mesh (`scripts/graded_mesh.py`): the same "
+        "has those levels only, and every node the same (table). A graded mesh (``python -m studies graded-mesh``): the same "
         "bound, |u − u_finest| plus the finest's band, at the study's markers, surface points and nodes.",
         f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the only "
         f"840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "
@@ -334,7 +339,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "for an end-to-end error larger by the surrogate's share above. The paper: 11.1 min vs 0.04 s.", "",
         "## Left out of this study", "",
         "* **The linear model**: it is cut where it turns elements inside out (the glued linear sweep of default.toml's "
-        "mesh from 5.5 mm, counting det F between the quadrature points, [linear_validity.md](linear_validity.md); "
+        "mesh from 5.5 mm, counting det F between the quadrature points, [linear_validity.json](linear_validity.json); "
         "`fem_offline/fe/validity.py`), so a linear model answers only part of the 0–10 mm envelope of these points, and is "
         "not a point on this front.",
         "* **Finer meshes than the study's finest** (the earlier linear rows up to paper scale): their error against "
@@ -358,20 +363,21 @@ def fe_query_seconds(offgrid: Path) -> dict:
     return {"median": float(np.median(seconds)), "max": max(seconds)}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sweep", type=Path, default=Path("runs/default_conv"), help="the 840-case sweep on one study level")
-    ap.add_argument("--offgrid", type=Path, default=Path("runs/default_conv/offgrid"))
-    ap.add_argument("--convergence", type=Path, default=Path("docs/convergence.json"),
-                    help="scripts/convergence_study.py's JSON (e.g. docs/convergence_contact.json)")
-    ap.add_argument("--graded", type=Path, help="scripts/graded_mesh.py's JSON: graded meshes judged against the same "
-                    "study, as more levels (e.g. docs/graded_mesh.json)")
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies tradeoff", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sweep", type=Path, default=Path("runs/default"), help="the 840-case sweep on one study level")
+    ap.add_argument("--offgrid", type=Path, default=Path("runs/default/offgrid"))
+    ap.add_argument("--convergence", type=Path, default=Path("runs/results/convergence_taylor_hood.json"),
+                    help="`python -m studies convergence-study`'s result (e.g. docs/results/convergence_taylor_hood.json)")
+    ap.add_argument("--graded", type=Path, help="`python -m studies graded-mesh`'s result: graded meshes judged against the "
+                    "same study, as more levels (e.g. docs/results/graded_mesh.json)")
     ap.add_argument("--mesh-check", type=Path, help="folder of the tiny scene's sweeps for the mesh check (built if missing)")
     ap.add_argument("--model", type=Path, default=Path("models/default"),
                     help="the committed model of the default configuration, quoted beside this run's fit")
-    ap.add_argument("--repeat", type=int, default=200, help="timed onnxruntime calls per graph (median)")
-    ap.add_argument("--out", type=Path, default=Path("docs"))
-    args = ap.parse_args()
+    ap.add_argument("--repeat", type=number("--repeat", int, minimum=1), default=200,
+                    help="timed onnxruntime calls per graph (median)")
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
     t0 = time.perf_counter()
     sweep = read_sweep(args.sweep)
     levels = level_errors(json.loads(args.convergence.read_text()))
@@ -396,15 +402,22 @@ def main() -> int:
     paths = solved_path_seconds(sweep.manifest)
     build = {lv.label: {"estimate_s": sweep_estimate(lv.path_seconds, len(paths), WORKERS),
                         "measured_s": makespan(paths, WORKERS) if lv is sweep_level else None} for lv in levels}
-    args.out.mkdir(parents=True, exist_ok=True)
-    figure(pts, levels, build, args.out)
+    out = results.DOCS_RESULTS if args.publish else results.RUNS_RESULTS
+    out.mkdir(parents=True, exist_ok=True)
+    figure(pts, levels, build, out)
     graded = f"[{args.graded}]({args.graded.name})" if args.graded else "none in this run"
-    meta = {"command": shlex.join(["python", "scripts/tradeoff.py", *sys.argv[1:]]), "convergence": str(args.convergence),
+    meta = {"convergence": str(args.convergence),
             "graded": graded,
             "sweep": str(args.sweep), "surface_nodes": len(sweep.mesh.node_sets["prostate_surface"]), "n_paths": len(paths), "n_held_out": configs[0]["n_held_out"],
             "n_offgrid": configs[0]["n_held_out"] - len(PAPER_TEST_CASES),
             "committed": committed_line(args.model, sweep_level), "seconds": time.perf_counter() - t0}
-    (args.out / "tradeoff.md").write_text(markdown(pts, levels, sweep_level, build, checks, fe_query_seconds(args.offgrid), meta))
+    fe_query = fe_query_seconds(args.offgrid)
+    report = markdown(pts, levels, sweep_level, build, checks, fe_query, meta)
+    path = results.write("tradeoff", json_ready({
+        "sweep": str(args.sweep), "convergence": str(args.convergence), "graded": str(args.graded) if args.graded else None,
+        "levels": [vars(lv) | {"build": build[lv.label]} for lv in levels], "sweep_level": sweep_level.label,
+        "points": pts, "mesh_check": checks, "fe_query_s": fe_query,
+        "report_md": report}), publish=args.publish)
     d = next(p for p in pts if p["default"])
     print(f"default (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {d['n_tets']} tets): end to end {d['e2e_mm']['markers']:.4f} mm at the markers, "
           f"{d['e2e_mm']['prostate_surface']:.4f} mm at the surface; decode {ms(d['latency_s'])}")
@@ -412,9 +425,5 @@ def main() -> int:
         front = sorted((p for p in pts if p.get(f"pareto_{region}")), key=lambda p: p["latency_s"])
         print(f"Pareto ({region}): " + "; ".join(f"{p['n_tets']} tets r{p['rank']} {p['net']} {ms(p['latency_s'])} "
                                                  f"{p['e2e_mm'][region]:.4f} mm" for p in front))
-    print(f"wrote {args.out / 'tradeoff.md'} and {args.out / 'tradeoff.png'} in {time.perf_counter() - t0:.0f} s")
+    print(f"wrote {path} and {out / 'tradeoff.png'} in {time.perf_counter() - t0:.0f} s")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Screenshot of the viewer on a model, as the README shows it: the real page in headless chromium (service.browser).
 
-    python scripts/viewer_screenshot.py [--model models/default] [--displacement-mm 10] [--angle-deg 0]
+    python -m studies viewer-screenshot [--model models/default] [--displacement-mm 10] [--angle-deg 0]
                                         [--targets 1] [--zoom 1.6] [--out docs/viewer.png]
 
 Starts `python -m service --model M`, opens /viewer, moves the sliders as a user would, clicks the
@@ -28,15 +28,15 @@ def zoom(page, factor: float) -> None:
         page.wait_for_timeout(20)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies viewer-screenshot", description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--displacement-mm", type=float, default=10.0)
     ap.add_argument("--angle-deg", type=float, default=0.0)
     ap.add_argument("--targets", type=int, default=1, help="prostate clicks, each a target")
     ap.add_argument("--zoom", type=float, default=1.6, help="camera this many times closer than the page's default")
     ap.add_argument("--out", type=Path, default=Path("docs/viewer.png"))
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     with local_service("--model", str(args.model)) as url, open_viewer(url) as (page, problems):
         zoom(page, args.zoom)
         for _ in range(args.targets):  # at rest, so the line shows the whole motion
@@ -50,7 +50,3 @@ def main() -> None:
         moved = page.evaluate("__viewer.targets.map((t) => t.motionMm.toFixed(2))")
         print(f"{args.out}: {args.model.name} at {state['lastFrame']['displacement_mm']} mm, "
               f"{state['lastFrame']['angle_deg']} deg; targets moved {', '.join(moved) or 'none'} mm")
-
-
-if __name__ == "__main__":
-    main()

@@ -1,6 +1,6 @@
 """Off-grid cases started from the sweep (fem_offline cases --sweep) against the same case from rest.
 
-    python scripts/warm_start_check.py --scene fem_offline/scenes/default_fine.toml --cases runs/default_v7/offgrid
+    python -m studies warm-start-check --scene fem_offline/scenes/default_fine.toml --cases runs/default_v7/offgrid
 
 Re-solves the case with the largest guide displacement (or --index) load-stepped from rest on the
 cases' mesh, and prints how far the two equilibria are apart (markers, prostate surface, every
@@ -25,13 +25,13 @@ from fem_offline.scene import load_scene
 from fem_offline.fe.solve import solve_case
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m studies warm-start-check", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True)
     ap.add_argument("--cases", type=Path, required=True, help="a `fem_offline cases --sweep` output folder")
     ap.add_argument("--index", type=int, help="case number (default: the largest displacement)")
     ap.add_argument("--model", type=Path, help="a model folder: its error against both starts' equilibria")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     files = sorted(args.cases.glob("offgrid_*.npz"))
     cases = [dict(np.load(f)) for f in files]
     i = args.index if args.index is not None else int(np.argmax([float(c["displacement_mm"]) for c in cases]))
@@ -57,7 +57,3 @@ def main() -> None:
             err = np.linalg.norm(pred - fe, axis=1)
             print(f"  surrogate ({args.model}) vs the case {label}: max over nodes (e_NN) {err.max():.4f} mm, "
                   f"markers {err[mesh.node_sets['markers']].max():.4f} mm")
-
-
-if __name__ == "__main__":
-    main()

@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-# One thread for numpy and torch unless the caller sets otherwise, before either loads (as scripts/tradeoff.py):
+# One thread for numpy and torch unless the caller sets otherwise, before either loads (as `python -m studies tradeoff`):
 # the fit's round-off, and so where L-BFGS stops, then does not depend on the cores or the machine's load. On
 # models/default's sweep, 2 threads beside an FE job stopped at a fit 0.33 mm off at one off-grid case; 1 thread
 # gives the same model.onnx byte for byte on every run, 0.0076 mm off there, in 36 s.
@@ -47,7 +47,7 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("restamp", help="stamp a model folder's accuracy again with another FE estimate, without refitting")
     r.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
     r.add_argument("--fe-error", required=True, type=Path,
-                   help="scripts/model_vs_converged.py's JSON for this model (docs/results/fe_error_default.json)")
+                   help="`python -m studies model-vs-converged`'s JSON for this model (docs/results/fe_error_default.json)")
     return ap
 
 

@@ -109,7 +109,7 @@ def region_errors(session, inputs: np.ndarray, reference: np.ndarray, node_sets:
 
 def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
     """Per-region GCI band (mm) of the FE on `mesh`, max over the hard cases of a convergence study
-    (scripts/convergence_study.py's JSON), and a sentence saying what it is measured against.
+    (`python -m studies convergence-study`'s JSON), and a sentence saying what it is measured against.
 
     `mesh` must be the study's finest level (its GCI band) or the one before it (its distance to the
     finest plus that band: tradeoff.gci_bands)."""
@@ -134,7 +134,7 @@ def fe_discretisation(path: Path, mesh) -> tuple[dict[str, float], str]:
 
 def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float], str] | None:
     """The FE error of a label-map model's mesh as estimated on the default phantom's label map
-    (scripts/labelmap_truth.py's JSON): the row with the same voxel size, mesher, CGAL facet distance, mesh
+    (`python -m studies labelmap-truth`'s JSON): the row with the same voxel size, mesher, CGAL facet distance, mesh
     sizes and element (solver.volumetric), as (bands per region, what it is measured against); None for a
     phantom scene or when no row matches. It covers the voxels and the mesher, not this anatomy: an estimate,
     said so."""
@@ -159,20 +159,20 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
             f"voxelised at {voxel:g} mm, meshed as this model was ({how}; {row['tets']:,} tets) and solved with its "
             f"element ({element}) at {data['case']}, is within these bounds of the phantom's converged estimate: its "
             f"distance to the grid-convergence study's finest level ({row['finest_level_tets']:,} tets) plus that level's grid "
-            f"convergence index (Fs 1.25), max over the points (scripts/labelmap_truth.py, {Path(path).name})")
+            f"convergence index (Fs 1.25), max over the points (`python -m studies labelmap-truth`, {Path(path).name})")
     return bands, text
 
 
 def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, float], str]:
     """The FE discretisation error of a model's mesh bounded through the model itself, from
-    scripts/model_vs_converged.py's JSON: per region, max over the cases of |model - u_fine| + GCI of
+    `python -m studies model-vs-converged`'s JSON: per region, max over the cases of |model - u_fine| + GCI of
     another element's converged estimate, plus the model's own surrogate error (the triangle inequality:
     its FE is within the surrogate error of the model)."""
     import json
 
     data = json.loads(Path(path).read_text())
     if data.get("kind") != "model_vs_converged":
-        raise ValueError(f"--fe-error: {path} is not scripts/model_vs_converged.py's output")
+        raise ValueError(f"--fe-error: {path} is not `python -m studies model-vs-converged`'s output")
     mesh = data.get("model_mesh", {})
     if (mesh.get("n_tets"), mesh.get("n_nodes")) != (len(model.mesh.tets), len(model.mesh.nodes)):
         raise ValueError(f"--fe-error: {path} compares a model on {mesh.get('n_tets')} tets / {mesh.get('n_nodes')} "
@@ -188,7 +188,7 @@ def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, f
     text = (f"FE discretisation: this model against the converged estimate of a {data['element'].replace('_', '-')} "
             f"grid-convergence study (the finest level plus its grid convergence index, Fs 1.25, point by point; {on}), "
             f"max over the cases, plus the surrogate error, which bounds this mesh's FE from the model's answer "
-            f"(scripts/model_vs_converged.py, {Path(path).name})")
+            f"(`python -m studies model-vs-converged`, {Path(path).name})")
     return bands, text
 
 
@@ -261,7 +261,7 @@ def _inside_cut(envelope, cut, test_cases, offgrid):
 def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None = None,
         fe_error: Path | None = None, fe_estimate: Path | None = None, progress: bool = True) -> folder.ModelManifest:
     """Run the whole pipeline and write `out`; returns the manifest. `fe_error`: a grid-convergence
-    study of the sweep's mesh; else `fe_estimate`: scripts/labelmap_truth.py's JSON, for a label-map sweep."""
+    study of the sweep's mesh; else `fe_estimate`: `python -m studies labelmap-truth`'s JSON, for a label-map sweep."""
     from tqdm import tqdm
 
     from .report import table3_markdown

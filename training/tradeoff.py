@@ -7,7 +7,7 @@ the region's points and the cases):
 
 e_surrogate(r, w): the float32 ONNX model against the FE of the mesh it was fitted on, held-out cases.
 e_FE(L): the FE on mesh level L against the best converged estimate of a grid-convergence study
-(scripts/convergence_study.py's JSON, studies/convergence.py), at the study's probe points:
+(`python -m studies convergence-study`'s JSON, studies/convergence.py), at the study's probe points:
   the finest level     its GCI band, the best estimate's own uncertainty
   a coarser level      |u_L - u_finest| + the finest's band, at each point and case, then the max
 By the triangle inequality each sum bounds the distance to the converged answer wherever the band
@@ -82,14 +82,14 @@ def _full_push_seconds(level: dict) -> float:
 
 
 def graded_levels(data: dict, skipped: list[str] | None = None) -> list[LevelFe]:
-    """e_FE per region for each mesh of scripts/graded_mesh.py's JSON, the bound `level_errors` gives a study
+    """e_FE per region for each mesh of `python -m studies graded-mesh`'s JSON, the bound `level_errors` gives a study
     level: max over the cases of |u - u_finest| + the finest's band at the study's probe points (its markers, its
     scale-1 mesh's surface nodes and every node of it).
 
     A mesh judged on fewer cases than the file's others is left out (its max would cover less), its tag
     appended to `skipped`."""
     if data.get("kind") != "graded_mesh":
-        raise ValueError("not scripts/graded_mesh.py's JSON (kind is not 'graded_mesh')")
+        raise ValueError("not `python -m studies graded-mesh`'s JSON (kind is not 'graded_mesh')")
     every = set().union(*(m["cases"] for m in data["meshes"]))
     out = []
     for m in data["meshes"]:

@@ -25,7 +25,7 @@ the residual each iteration. So Newton adds it once the relative residual is bel
 (newton.EXACT_CONTACT_BELOW), where the tangent is the exact Hessian of a stable equilibrium. With
 that and the merged multiplier update below, the default mesh's 10 mm path at beta = 10 deg (0.25 mm
 steps) took 206 Newton iterations instead of 459, 1,689 CG iterations instead of 3,478, 62
-factorisations instead of 74 and no extra multiplier update instead of 11 (scripts/profile_path.py
+factorisations instead of 74 and no extra multiplier update instead of 11 (`python -m studies profile-path`
 on the default sweep's mesh); the fields agree within the contact tolerance.
 Between Newton
 solves at one guide position the multipliers are updated, lam <- t (Uzawa, continuation.py), until

@@ -5,7 +5,7 @@ quadrature weights times |det J|, Ue (n_tets, 10, 3) element displacements. Elem
 (n_tets, 10, 3, 10, 3) = (tet, node a, comp i, node b, comp k). Stresses in kPa, lengths in mm.
 
 Why not scikit-fem's BilinearForm: on a 60k-tet mesh it took 17.8 s and 3.3 GB where these
-einsums over scikit-fem's own basis gradients take 1.1 s (`scripts/bench_fem.py` prints both
+einsums over scikit-fem's own basis gradients take 1.1 s (``python -m bench fem`` prints both
 on the default mesh). scikit-fem still provides the mesh, the P2 basis and the quadrature.
 
 Neo-Hookean (compressible), with the small-strain mu, lambda of each tissue:
@@ -20,7 +20,7 @@ at each tet's volume ratio theta_e = v_e / V_e = (1/V_e) int_e J dX, not point b
     P      = mu (F - F^-T) + p_e J F^-T,  p_e = lambda ln(theta_e) / theta_e
 This is the P2/P0 element with its constant pressure condensed per tet. At nu = 0.495
 (lambda / mu = 99) the pointwise P2 element is too stiff in volume change on coarse meshes
-(volumetric locking, scripts/locking_check.py); one constraint per tet instead of one per
+(volumetric locking, `python -m studies locking-check`); one constraint per tet instead of one per
 quadrature point relieves it. The shear terms (mu) stay pointwise.
 
 Taylor-Hood (solver.volumetric = "taylor_hood"; `pressure` below): the volumetric stress is a given

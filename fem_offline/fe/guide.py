@@ -78,7 +78,7 @@ def seat(mesh: TetMesh, guide: Guide) -> Seat:
     crossing nearest tip_mm. The tip stays on the axis the user gave: a label map's lumen is a
     smoothed staircase whose nodes lie up to a voxel to the side of any given point, and the nearest
     node put the push up to 0.51 mm off the midline of the voxelised phantom (its left and right
-    markers then moved up to 0.44 mm apart, where the phantom's move alike; scripts/labelmap_truth.py).
+    markers then moved up to 0.44 mm apart, where the phantom's move alike; `python -m studies labelmap-truth`).
     "node": the lumen node nearest tip_mm (label-map scenes before snap_to existed).
     """
     faces = _lumen_faces(mesh)

@@ -25,7 +25,7 @@ search on the energy Pi(u), the contact terms and det F > 0 are as for the displ
 (newton.py).
 
 Why: with lambda / mu = 99 (nu = 0.495) the pointwise P2 element is too stiff in volume change on
-the study's meshes (volumetric locking, scripts/locking_check.py), and the mean-dilatation P2/P0
+the study's meshes (volumetric locking, `python -m studies locking-check`), and the mean-dilatation P2/P0
 element is too soft (its P0 pressure converges at first order). Taylor-Hood P2/P1 is inf-sup stable
 with one pressure unknown per vertex (about one per 6 tets), so it neither locks nor loses the P2
 element's order.

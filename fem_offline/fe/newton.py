@@ -31,7 +31,7 @@ CG_RTOL = 1e-2  # inexact Newton: the outer iteration removes what CG leaves
 # made the tangent indefinite (contact.py).
 EXACT_CONTACT_BELOW = 1e-2
 # The tangent's PARDISO factors are float32 (linsolve.Factor, mixed.SaddleFactor): they only precondition CG
-# to CG_RTOL, or give a correction the next Newton iteration corrects. Measured (scripts/profile_path.py): see
+# to CG_RTOL, or give a correction the next Newton iteration corrects. Measured (`python -m studies profile-path`): see
 # README and mixed.py. A superposable (linear, glued) problem keeps float64 ones: its one solve is the answer,
 # exact to round-off.
 SINGLE_FACTORS = True

@@ -5,7 +5,7 @@ quadrature point (linear.det_f_cubic). Past its first root some element is insid
 measures, along each angle of a sweep grid: min det F, the number of inverted tets and where they
 are, the exact first crossing of det F = 0 (bisection on the cubic between grid points), and the
 displacement up to which every angle is valid (contracts.sweep.valid_up_to_mm). The study that
-prints it is scripts/linear_validity.py (docs/linear_validity.md).
+prints it is `python -m studies linear-validity` (docs/linear_validity.md).
 
 A P2 field's det F is a polynomial over each tet, so it can turn <= 0 between the solver's 4
 quadrature points while positive at them. PROBE_INTORDER names the denser rule every sweep snapshot

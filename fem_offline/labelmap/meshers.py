@@ -1,6 +1,6 @@
 """Label map -> one conforming tet mesh, a tissue per tet, in the image's patient coordinates (mm).
 
-Three meshers (`label_map.mesher`), measured against each other by scripts/compare_meshers.py (README):
+Three meshers (`label_map.mesher`), measured against each other by `python -m studies compare-meshers` (README):
 
 - "cgal" (default): CGAL's labelled-image mesher (pygalmesh) meshes the voxel labels directly, cell
   size per label, the guide's fine ball a label of its own, facets within half a voxel of the labels'

@@ -120,10 +120,10 @@ class LabelMap(_Strict):
     labels: dict[str, Annotated[int, Field(gt=0)]]  # tissue name -> label value
     background: str = "adipose"  # tissue of label-0 voxels; "" = label 0 is outside the body
     outside: tuple[Annotated[int, Field(gt=0)], ...] = ()
-    mesher: Literal["cgal", "ftetwild", "tetgen"] = "cgal"  # scripts/compare_meshers.py measures them
+    mesher: Literal["cgal", "ftetwild", "tetgen"] = "cgal"  # `python -m studies compare-meshers` measures them
     # CGAL only: how far a surface facet may stray from the labels' boundary, in voxels (the smallest
     # spacing). It sets the surface triangles, and so most of the tets: 0.5 gives 21,900 tets on the
-    # medium variant's 1 mm map, 1.0 13,900 (scripts/labelmap_truth.py measures what it costs).
+    # medium variant's 1 mm map, 1.0 13,900 (`python -m studies labelmap-truth` measures what it costs).
     facet_distance_voxels: Annotated[float, Field(gt=0, le=4)] = 0.5
 
     @model_validator(mode="after")

@@ -146,7 +146,7 @@ def test_rerun_resumes_without_solving_again(built):
 
 
 def test_fe_estimate_for_the_voxels_and_mesher_goes_into_the_manifest(built, tmp_path):
-    """With a row of scripts/labelmap_truth.py's JSON for the model's voxel size and mesher, the manifest
+    """With a row of `python -m studies labelmap-truth`'s JSON for the model's voxel size and mesher, the manifest
     and report.md state it as the FE error, said to be an estimate, and end to end = surrogate + it;
     with no matching row they say the FE error was not measured."""
     from training.fit import fit

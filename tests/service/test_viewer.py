@@ -123,7 +123,7 @@ def test_page_loads_without_errors_with_the_envelope_on_its_sliders(viewer, tiny
         assert page.eval_on_selector(f"#{slider}", "s => [Number(s.min), Number(s.max)]") == [lo, hi]
     state = page.evaluate("({errors: __viewer.errors, ms: __viewer.lastFrameMs})")
     assert problems == [] and state["errors"] == []
-    assert 0 < state["ms"] < 60_000  # measured and exposed (the figure itself comes from scripts/bench_viewer.py)
+    assert 0 < state["ms"] < 60_000  # measured and exposed (the figure itself comes from `python -m bench viewer`)
 
 
 @needs_chromium

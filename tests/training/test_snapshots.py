@@ -24,7 +24,7 @@ def test_snapshots_keep_the_sweep_order_and_reference_nodes(tiny_sweep):
 
 
 def test_sub_grid_keeps_every_kth_angle_and_displacement_and_the_envelope():
-    """scripts/sweep_density.py's coarser sweeps: on the paper's 21 x 40 grid, every 2nd angle keeps both
+    """`python -m studies sweep-density`'s coarser sweeps: on the paper's 21 x 40 grid, every 2nd angle keeps both
     ends (11 angles, as fem_offline/scenes/patient.toml's 2 deg); every 2nd displacement keeps 10 mm."""
     d, b = np.meshgrid(0.25 * np.arange(1, 41), np.arange(-10.0, 11.0), indexing="ij")
     inputs = np.stack([d.ravel(), b.ravel()], axis=1)

@@ -130,7 +130,7 @@ def test_a_level_under_the_analysed_three_with_a_stored_bound_gets_every_region(
 
 
 def _graded():
-    """scripts/graded_mesh.py's JSON: one mesh, two cases (a full push and a half one)."""
+    """The graded-mesh study's result (python -m studies graded-mesh): one mesh, two cases (a full push and a half one)."""
     def case(m, s, n, seconds):
         return {"seconds": seconds, "markers_mm": m, "interior_mm": 0.0, "surface_probes_mm": {"max": s},
                 "surface_own_nodes_mm": {"max": 0.0}, "all_nodes_mm": 0.0, "all_nodes_probes_mm": n}
@@ -172,22 +172,25 @@ def test_a_graded_mesh_judged_on_fewer_cases_is_left_out_and_named():
 
 
 def test_each_committed_graded_mesh_names_the_command_that_judged_it():
-    """The file merges meshes judged by several runs: each mesh's command, read by the script's own parser,
-    asks for that mesh's sizes, the file's study levels and exactly the cases the mesh holds (the runs wrote
-    the file under its name before docs/results/, docs/graded_mesh_5levels.json)."""
-    import importlib.util
+    """The file merges meshes judged by several runs: each mesh's command, read by the study's own parser
+    (python -m studies graded-mesh), asks for that mesh's sizes, the file's study levels and exactly the cases
+    the mesh holds. The runs were of scripts/graded_mesh.py, which wrote the file itself (--json
+    docs/graded_mesh_5levels.json, before docs/results/): their script path and --json are mapped to the
+    command's form."""
     from pathlib import Path
 
+    from studies import graded_mesh
+
     root = Path(__file__).resolve().parents[2]
-    spec = importlib.util.spec_from_file_location("graded_mesh", root / "scripts" / "graded_mesh.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
     data = json.loads((root / "docs" / "results" / "graded_mesh.json").read_text())
     assert "command" not in data and data["commands"] == list(dict.fromkeys(m["command"] for m in data["meshes"]))
     for mesh in data["meshes"]:
         argv = shlex.split(mesh["command"])
-        assert argv[:2] == ["python", "scripts/graded_mesh.py"]
-        args = script.parser().parse_args(argv[2:])
-        assert [script.tag(s) for s in args.sizes] == [mesh["tag"]]
-        assert args.scales == data["scales"] and str(args.study) == data["study"] and args.json == Path("docs") / "graded_mesh_5levels.json"
-        assert [f"{d:g} mm, {b:g} deg" for d, b in (tuple(map(float, c.split(":"))) for c in args.cases)] == list(mesh["cases"])
+        if argv[:2] == ["python", "scripts/graded_mesh.py"]:
+            assert argv[-2:] == ["--json", "docs/graded_mesh_5levels.json"]
+            argv = ["python", "-m", "studies", "graded-mesh", *argv[2:-2]]
+        assert argv[:4] == ["python", "-m", "studies", "graded-mesh"]
+        args = graded_mesh.parser().parse_args(argv[4:])
+        assert [graded_mesh.tag(s) for s in args.sizes] == [mesh["tag"]]
+        assert args.scales == data["scales"] and str(args.study) == data["study"]
+        assert [f"{d:g} mm, {b:g} deg" for d, b in args.cases] == list(mesh["cases"])

@@ -16,7 +16,7 @@ from fem_offline.scene import LabelMap, SceneError, parse_scene
 # TetGen (a wheel, in the offline extra), so CI meshes label maps with TetGen.
 MESHERS = [m for m, package in (("cgal", "pygalmesh"), ("tetgen", "tetgen")) if importlib.util.find_spec(package)]
 
-# Volume error bounds with the 1 mm label map of the tiny scene: measured by scripts/compare_meshers.py
+# Volume error bounds with the 1 mm label map of the tiny scene: measured by `python -m studies compare-meshers`
 # --scene fem_offline/scenes/tiny.toml --spacing-mm 1 0.5 (docs/meshers_tiny.json) and rounded up. CGAL
 # (-3.1, -2.1, -0.1, -5.1, -2.6, +0.1 %): facets inscribed in convex surfaces lose volume. TetGen (-0.5,
 # -1.8, +1.5, -0.4, +1.6, +0.0 %): the smoothed surface nets, decimated by at most 0.25-0.5 voxel.
