@@ -93,7 +93,7 @@ bench: $(STAMP) ## FE timings on the default scene
 	MKL_NUM_THREADS=1 $(PY) -m bench fem
 
 bench-service: $(STAMP) ## service latency and throughput on MODEL (models/default)
-	$(PY) scripts/bench_service.py --model $(MODEL)
+	$(PY) -m bench service --publish
 
 # Accuracy vs time on the end-to-end error (docs/results/tradeoff.*): $(RUNS) must be a sweep on one level of the
 # convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default_graded (the

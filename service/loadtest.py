@@ -65,11 +65,14 @@ def free_port() -> int:
 
 
 @contextmanager
-def local_service(*flags: str, cwd: Path | None = None, wait_s: float = 30.0):
-    """Run `python -m service *flags` on a free loopback port for the block; yield its URL once /readyz answers."""
+def local_service(*flags: str, cwd: Path | None = None, wait_s: float = 30.0, cpus: set[int] | None = None):
+    """Run `python -m service *flags` on a free loopback port for the block; yield its URL once /readyz answers.
+
+    `cpus`: pin the service (every worker) to these cores, as `taskset` does."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    server = subprocess.Popen([sys.executable, "-m", "service", *flags, "--port", str(port), "--log-level", "warning"],
+    pin = ["taskset", "-c", ",".join(map(str, sorted(cpus)))] if cpus else []
+    server = subprocess.Popen([*pin, sys.executable, "-m", "service", *flags, "--port", str(port), "--log-level", "warning"],
                               cwd=cwd, env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
         deadline = time.monotonic() + wait_s

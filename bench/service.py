@@ -1,0 +1,203 @@
+"""Service throughput and latency, batching off and on, with the service pinned to 1 and to all usable cores.
+
+    python -m bench service [--duration 3] [--model models/default --model runs/paper_decoder/model] [--publish]
+
+For each core set (the service pinned with taskset; on more than one core the clients, this
+process's threads, are pinned to the other cores where there are any, else share them), each
+model and each configuration (batching off with the default workers, off with one worker per
+core, on with the defaults), starts `python -m service` on a free loopback port and loads it with
+service/loadtest.py for each scenario. The paper-scale decoder (bench/paper_decoder.py) is built
+into runs/ first when missing. Beside the served figures it measures, pinned to the same cores:
+the in-process decode capacity (onnxruntime, batches of 8, the default lanes and threads) and the
+per-request work outside onnxruntime (reference positions, reply bodies), alone. With a 312k-node
+JSON load it polls /healthz (the event loop must stay free). Prints the tables and the issue #35
+targets; writes everything, with the machine it ran on, through studies.results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+
+from contracts.model import read_manifest
+from service import loadtest
+from service.cores import Concurrency, usable_cores
+from service.settings import DEFAULT_MODEL
+from studies import results
+
+from . import paper_decoder
+
+# (name, region, format, clients) per model size; the large model's JSON row also polls /healthz
+SMALL = [("markers binary 1", "markers", "binary", 1), ("full binary 1", None, "binary", 1),
+         ("full binary 8", None, "binary", 8)]
+LARGE = [("full binary 1", None, "binary", 1), ("full binary 8", None, "binary", 8),
+         ("full json 8", None, "json", 8)]
+LARGE_NODES = 100_000
+
+
+def core_sets() -> list[set[int]]:
+    """One core for the service (the last usable one), then all usable cores."""
+    cores = sorted(os.sched_getaffinity(0))
+    return [{cores[-1]}, set(cores)] if len(cores) > 1 else [set(cores)]
+
+
+def configs(n_cores: int) -> list[tuple[str, list[str]]]:
+    off = [("off", ["--batching", "false"])]
+    if n_cores > 1:
+        off.append((f"off, {n_cores} workers", ["--batching", "false", "--workers", str(n_cores)]))
+    return [*off, ("on", ["--batching", "true"])]
+
+
+def poll_health(url: str, stop: threading.Event, out: list[float]) -> None:
+    """GET /healthz every 5 ms until `stop`; each latency in ms into `out`."""
+    while not stop.is_set():
+        t0 = time.perf_counter()
+        urllib.request.urlopen(f"{url}/healthz", timeout=10).read()
+        out.append((time.perf_counter() - t0) * 1e3)
+        stop.wait(0.005)
+
+
+def run_scenario(url: str, scenario, duration_s: float, *, large: bool) -> dict:
+    name, region, fmt, clients = scenario
+    before = loadtest.batch_counts(url)
+    health, stop = [], threading.Event()
+    poller = threading.Thread(target=poll_health, args=(url, stop, health), daemon=True) if large and fmt == "json" else None
+    if poller:
+        poller.start()
+    s = loadtest.run(url, concurrency=clients, duration_s=duration_s, fmt=fmt, region=region, warmup=5).summary()
+    stop.set()
+    if poller:
+        poller.join()
+    batches, requests = np.subtract(loadtest.batch_counts(url), before)
+    row = {"scenario": name, "region": region or "full", "format": fmt, "clients": clients, **s,
+           "mean_batch": requests / batches if batches else None}
+    if health:
+        row["healthz_p99_ms"], row["healthz_polls"] = float(np.percentile(health, 99)), len(health)
+    return row
+
+
+def client_cores(service: set[int]) -> set[int]:
+    others = set(os.sched_getaffinity(0)) - service
+    return others or service
+
+
+def served(model: Path, cores: set[int], duration_s: float, *, large: bool) -> list[dict]:
+    rows, mine = [], os.sched_getaffinity(0)
+    os.sched_setaffinity(0, client_cores(cores))
+    try:
+        for config, flags in configs(len(cores)):
+            with loadtest.local_service("--model", str(model), *flags, "--access-log", "off", wait_s=180,
+                                        cpus=cores) as url:
+                for scenario in (LARGE if large else SMALL):
+                    row = run_scenario(url, scenario, duration_s, large=large)
+                    rows.append({"cores": len(cores), "config": config, **row})
+                    print_row(rows[-1])
+    finally:
+        os.sched_setaffinity(0, mine)
+    return rows
+
+
+def in_process(model: Path, cores: set[int]) -> dict:
+    """Pinned to `cores`: decode capacity with the default lanes and threads, and the work outside onnxruntime."""
+    from service.model import Predictor, read_model_folder
+    from service.predict import ALL_NODES, Query, finish
+    from service.replies import binary_reply, json_chunks
+
+    mine = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, cores)
+    try:
+        c = Concurrency.for_cores(len(cores))
+        predictor = Predictor(read_model_folder(model), threads=c.threads)
+        guides = np.tile([[5.0, 2.0]], (8, 1))
+        solo = _median_ms(lambda: predictor.decode(guides[:1]))
+        u = predictor.decode(guides[:1])[0]
+        query = Query((5.0, 2.0), ALL_NODES, None)
+        add = _median_ms(lambda: finish(predictor, query, u.copy()))
+        copy = _median_ms(lambda: u.copy())
+        prediction = finish(predictor, query, u.copy())
+        binary = _median_ms(lambda: binary_reply(prediction.positions))
+        json_ms = _median_ms(lambda: json_chunks({"count": len(u)}, {"positions": prediction.positions}), n=5)
+        capacity = _capacity(predictor, guides, lanes=c.lanes)
+    finally:
+        os.sched_setaffinity(0, mine)
+    return {"cores": len(cores), "defaults": c.__dict__, "decode_ms_batch_1": solo,
+            "reference_positions_ms": max(add - copy, 0.0), "binary_reply_ms": binary, "json_reply_ms": json_ms,
+            "decode_capacity_rps": capacity}
+
+
+def _median_ms(f, n: int = 20) -> float:
+    f()
+    times = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        f()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times))
+
+
+def _capacity(predictor, guides: np.ndarray, *, lanes: int, seconds: float = 1.5) -> float:
+    """Requests a second decoded in batches of len(guides) by `lanes` threads at once."""
+    done, stop_at = [0] * lanes, time.perf_counter() + seconds
+
+    def lane(i: int) -> None:
+        while time.perf_counter() < stop_at:
+            predictor.decode(guides)
+            done[i] += len(guides)
+
+    t0 = time.perf_counter()
+    threads = [threading.Thread(target=lane, args=(i,)) for i in range(lanes)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return sum(done) / (time.perf_counter() - t0)
+
+
+def print_row(r: dict) -> None:
+    mean = f"{r['mean_batch']:.1f}" if r.get("mean_batch") else ""
+    health = f"{r['healthz_p99_ms']:.1f}" if "healthz_p99_ms" in r else ""
+    print(f"| {r['cores']} | {r['config']} | {r['scenario']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
+          f"{r['throughput_rps']:.0f} | {r['errors']} | {mean} | {health} |", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench service", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", type=Path, action="append",
+                    help=f"a model folder (repeat); default {DEFAULT_MODEL.name} and {paper_decoder.PAPER_DECODER}")
+    ap.add_argument("--duration", type=float, default=3.0, help="seconds per row")
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
+    models = args.model or [DEFAULT_MODEL, paper_decoder.ensure()]
+    print(f"{usable_cores()} usable cores; load average {os.getloadavg()[0]:.2f}; {args.duration:g} s per row")
+    data = {"duration_s": args.duration, "load_at_start": os.getloadavg()[0], "models": {}}
+    for model in models:
+        n_nodes = read_manifest(model).mesh.n_nodes
+        large = n_nodes >= LARGE_NODES
+        entry = {"n_nodes": n_nodes, "rank": read_manifest(model).pca.rank, "in_process": [], "rows": []}
+        print(f"\nmodel {model}: {n_nodes} nodes\n| cores | batching | scenario | p50 ms | p99 ms | req/s | errors "
+              "| mean batch | /healthz p99 ms |\n|---|---|---|---|---|---|---|---|---|")
+        for cores in core_sets():
+            entry["in_process"].append(in_process(model, cores))
+            entry["rows"] += served(model, cores, args.duration, large=large)
+        for p in entry["in_process"]:
+            print(f"in process, {p['cores']} core(s): decode {p['decode_ms_batch_1']:.3f} ms alone; capacity "
+                  f"{p['decode_capacity_rps']:.0f} req/s; outside onnxruntime: reference positions "
+                  f"{p['reference_positions_ms']:.3f} ms, binary reply {p['binary_reply_ms']:.4f} ms, "
+                  f"JSON reply {p['json_reply_ms']:.2f} ms")
+        data["models"][str(model)] = entry
+    data["load_at_end"] = os.getloadavg()[0]
+    from .service_targets import readme_rows, targets
+
+    data["targets"], data["readme_rows"] = targets(data), readme_rows(data)
+    print()
+    for t in data["targets"]:
+        print(f"target: {t['target']}: {t['value']} -> {'met' if t['met'] else 'NOT met'}")
+    print(f"\nwrote {results.write('bench_service', data, publish=args.publish)}")
+    return 0

@@ -1,0 +1,43 @@
+"""The service benchmark's targets and README rows, read from its measurements."""
+
+from bench.service_targets import readme_rows, targets
+
+
+def _row(cores, config, scenario, rps, p99, **extra):
+    return {"cores": cores, "config": config, "scenario": scenario, "throughput_rps": rps, "p50_ms": p99 / 2,
+            "p99_ms": p99, **extra}
+
+
+def _data():
+    small = {"n_nodes": 10_123, "in_process": [], "rows": [
+        _row(2, "off", "full binary 1", 600, 1.2), _row(2, "on", "full binary 1", 700, 1.1),
+        _row(2, "on", "markers binary 1", 1500, 0.8), _row(2, "on", "full binary 8", 2000, 5.0)]}
+    large = {"n_nodes": 312_089, "in_process": [
+        {"cores": 2, "defaults": {"workers": 1, "lanes": 2, "threads": 1}, "decode_capacity_rps": 400.0,
+         "reference_positions_ms": 0.08, "binary_reply_ms": 0.01}], "rows": [
+        _row(2, "off", "full binary 8", 100, 60), _row(2, "off, 2 workers", "full binary 8", 150, 50),
+        _row(2, "on", "full binary 8", 250, 35), _row(2, "on", "full json 8", 20, 400, healthz_p99_ms=12.0)]}
+    return {"models": {"a": small, "b": large}}
+
+
+def test_batching_is_judged_against_the_best_unbatched_config():
+    t = {x["target"]: x for x in targets(_data())}
+    ratio = next(v for k, v in t.items() if "1.6x" in k)
+    assert ratio["value"] == round(250 / 150, 2) and ratio["met"]
+    share = next(v for k, v in t.items() if "decode capacity" in k)
+    assert share["value"] == 0.62 and share["met"]
+
+
+def test_every_target_says_whether_it_is_met_and_the_unmeasured_one_is_not():
+    t = targets(_data())
+    assert all(set(x) == {"target", "value", "met"} and isinstance(x["met"], bool) for x in t)
+    assert not next(x for x in t if x["target"].startswith(">= 8 cores"))["met"]
+    assert next(x for x in t if "/healthz" in x["target"])["met"]
+
+
+def test_readme_rows_have_the_fields_the_readme_table_reads():
+    rows = readme_rows(_data())
+    assert len(rows) == 6
+    assert all(set(r) == {"what", "p50_ms", "p99_ms", "req_s"} for r in rows)
+    off = next(r for r in rows if "batching off" in r["what"])
+    assert off["req_s"] == 150  # the best unbatched configuration
