@@ -1,10 +1,11 @@
-"""Seed a grid-convergence study's level from a sweep of that level's scene and mesh, so that
-``python -m studies convergence-study`` takes its hard cases from the sweep's snapshots instead of solving
-them again.
+"""Seed a grid-convergence study's level from a sweep of that level's scene and mesh (no solving again).
+
+`python -m studies convergence-study` then takes its hard cases from the sweep's snapshots instead of
+solving them again.
 
     python -m studies convergence-from-sweep --sweep runs/default_v7 --scale 0.769 --out runs/convergence_resolve
     MKL_NUM_THREADS=2 python -m studies convergence-study --guide contact --step-mm 0.5 \\
-        --scales 1.3 1 0.769 --out runs/convergence_resolve --docs runs/convergence_resolve
+        --scales 1.3 1 0.769 --out runs/convergence_resolve --name convergence_resolve
 
 The sweep must be of the study's scene at that scale (the same physics and mesh sizes; the
 sweep's load steps, 0.25 mm, may differ from the study's): that is checked on every field but the

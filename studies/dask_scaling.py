@@ -1,4 +1,6 @@
-"""How the sweep scales on a Dask cluster: the same paths on a LocalCluster of 1 and 2 single-threaded
+"""How the sweep scales on a Dask cluster: 1 and 2 single-threaded workers, and a projection to N machines.
+
+How the sweep scales on a Dask cluster: the same paths on a LocalCluster of 1 and 2 single-threaded
 workers, and a projection to N machines.
 
     python -m studies dask-scaling [--scene fem_offline/scenes/grid_study_base.toml] [--angles 4] [--to-mm 2]

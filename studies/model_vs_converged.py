@@ -94,10 +94,10 @@ def main(argv: list[str] | None = None) -> int | None:
     path = results.write(args.name, result, publish=args.publish)
     for case, row in result["cases"].items():
         r = row["regions"]
-        print(f"{case} (levels x{' x'.join(f'{s:g}' for s in row['scales'])}): model vs converged ({args.element}), max |m - u_fine| + GCI: markers {r['markers']['end_to_end_max_mm']:.3f} mm "
-              f"(gap {r['markers']['gap_max_mm']:.3f} + band up to {r['markers']['band_max_mm']:.3f}); prostate surface "
-              f"{r['prostate_surface']['end_to_end_max_mm']:.3f} (near tip {r['prostate_surface_near_tip']['end_to_end_max_mm']:.3f}, "
-              f"rest {r['prostate_surface_rest']['end_to_end_max_mm']:.3f}); every node {r['all_nodes']['end_to_end_max_mm']:.3f}; "
+        worst = ", ".join(f"{k.replace('_', ' ')} {v['end_to_end_max_mm']:.3f}" for k, v in r.items())
+        levels_used = " x".join(f"{s:g}" for s in row["scales"])
+        print(f"{case} (levels x{levels_used}), model vs converged ({args.element}), max |m - u_fine| + GCI in mm: {worst}; "
+              f"at the markers a gap of {r['markers']['gap_max_mm']:.3f} + a band up to {r['markers']['band_max_mm']:.3f}; "
               f"mean |u| {row['mean_kind']}")
     print("max over the cases: " + ", ".join(f"{k} {v:.3f} mm" for k, v in result["max_over_cases"].items()))
     print(f"wrote {path}")

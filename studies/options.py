@@ -20,13 +20,18 @@ TAYLOR_HOOD_STUDY = Path("runs/convergence_contact_taylor_hood")
 TAYLOR_HOOD_SCALES = [1.3, 1.0, 0.769, 0.5917]
 
 
+def _pair(text: str, flag: str, form: str) -> tuple[float, float]:
+    """Two numbers A:B, or an argparse error naming the flag and the form."""
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{flag}: {text!r} is not {form}") from None
+    return a, b
+
+
 def case_arg(text: str) -> tuple[float, float]:
     """argparse type of one case, D_MM:BETA_DEG (e.g. 10:0)."""
-    try:
-        d, beta = (float(x) for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--cases: {text!r} is not D_MM:BETA_DEG (e.g. 10:0)") from None
-    return d, beta
+    return _pair(text, "--cases", "D_MM:BETA_DEG (e.g. 10:0)")
 
 
 def case_text(case: tuple[float, float]) -> str:
@@ -69,11 +74,7 @@ def with_tolerances(scene, rtol: float, contact_tol_mm: float):
 
 def tolerance_arg(text: str) -> tuple[float, float]:
     """argparse type of RTOL:CONTACT_TOL_MM (e.g. 1e-6:0.005)."""
-    try:
-        rtol, tol = (float(x) for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not RTOL:CONTACT_TOL_MM (e.g. 1e-6:0.005)") from None
-    return rtol, tol
+    return _pair(text, "a tolerance", "RTOL:CONTACT_TOL_MM (e.g. 1e-6:0.005)")
 
 
 def json_ready(x, digits: int | None = None):

@@ -1,4 +1,6 @@
-"""What the nonlinear solver's tolerances cost and buy: one displacement path per setting of
+"""What the nonlinear solver's tolerances (solver.rtol, guide.contact_tol_mm) cost in time and buy in accuracy.
+
+What the nonlinear solver's tolerances cost and buy: one displacement path per setting of
 (solver.rtol, guide.contact_tol_mm), its time and work, and how far its fields are from a tight
 reference's (rtol 1e-8, contact 0.001 mm) at the markers, the prostate surface and every node.
 

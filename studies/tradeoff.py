@@ -294,7 +294,7 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate surface "
         "and every node only as summaries of the three analysed levels (a coarser level's pointwise bound, max over "
         "the points; studies analysed before the coarse bound was stored give the two finest), so the surface panel "
-        "has those levels only, and every node the same (table). A graded mesh (``python -m studies graded-mesh``): the same "
+        "has those levels only, and every node the same (table). A graded mesh (`python -m studies graded-mesh`): the same "
         "bound, |u − u_finest| plus the finest's band, at the study's markers, surface points and nodes.",
         f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the only "
         f"840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "

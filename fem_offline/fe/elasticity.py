@@ -5,7 +5,7 @@ quadrature weights times |det J|, Ue (n_tets, 10, 3) element displacements. Elem
 (n_tets, 10, 3, 10, 3) = (tet, node a, comp i, node b, comp k). Stresses in kPa, lengths in mm.
 
 Why not scikit-fem's BilinearForm: on a 60k-tet mesh it took 17.8 s and 3.3 GB where these
-einsums over scikit-fem's own basis gradients take 1.1 s (``python -m bench fem`` prints both
+einsums over scikit-fem's own basis gradients take 1.1 s (`python -m bench fem` prints both
 on the default mesh). scikit-fem still provides the mesh, the P2 basis and the quadrature.
 
 Neo-Hookean (compressible), with the small-strain mu, lambda of each tissue:
