@@ -114,6 +114,12 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
     else:
         P, min_j, Finv, J = el.linear_stress(H, p.mu, p.lam, p.W if p.mean_dilatation else None), 1.0, None, None
         pi = el.linear_energy(H, p.W, p.mu, p.lam, p.mean_dilatation) - work
+    r, pi, touch = _loads_and_contact(p, u, P, pi)
+    return Eval(r, min_j, pi, Finv, J, touch)
+
+
+def _loads_and_contact(p: Problem, u: np.ndarray, P: np.ndarray, pi: float) -> tuple[np.ndarray, float, ct.State | None]:
+    """r = f_int(P) - f_gravity + the tip's contact force, and Pi plus the contact energy."""
     r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
     if p.body_force is not None:
         r -= p.body_force
@@ -122,7 +128,7 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
         touch = ct.evaluate(p.contact, u, p.contact_load)
         r += ct.scatter(p.contact, touch.force, p.n_dofs)
         pi += touch.energy
-    return Eval(r, min_j, pi, Finv, J, touch)
+    return r, pi, touch
 
 
 def _residual_taylor_hood(p: Problem, u: np.ndarray, H: np.ndarray, work: float) -> Eval:
@@ -146,14 +152,7 @@ def _residual_taylor_hood(p: Problem, u: np.ndarray, H: np.ndarray, work: float)
         b, _, q = p.pressure.project(p.W, np.trace(H, axis1=2, axis2=3))
         P, min_j, Finv, J = el.linear_stress(H, p.mu, zero, pressure=q), 1.0, None, None
         pi = el.linear_energy(H, p.W, p.mu, zero) + 0.5 * b @ p.pressure.mass_factor.solve(b) - work
-    r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
-    if p.body_force is not None:
-        r -= p.body_force
-    touch = None
-    if p.contact is not None:
-        touch = ct.evaluate(p.contact, u, p.contact_load)
-        r += ct.scatter(p.contact, touch.force, p.n_dofs)
-        pi += touch.energy
+    r, pi, touch = _loads_and_contact(p, u, P, pi)
     return Eval(r, min_j, pi, Finv, J, touch, q)
 
 

@@ -112,6 +112,17 @@ def _fragment(occ, shapes: dict[str, int]) -> dict[str, list[int]]:
     return pieces
 
 
+def _threshold(field, distance: int, *, size_min: float, size_max: float, dist_max_mm: float) -> int:
+    """A gmsh Threshold field: size_min on the distance field's surfaces, growing to size_max at dist_max_mm."""
+    tag = field.add("Threshold")
+    field.setNumber(tag, "InField", distance)
+    field.setNumber(tag, "SizeMin", size_min)
+    field.setNumber(tag, "SizeMax", size_max)
+    field.setNumber(tag, "DistMin", 0.0)
+    field.setNumber(tag, "DistMax", dist_max_mm)
+    return tag
+
+
 def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
     """Fine near the prostate and the guide tip, coarse far away."""
     size = scene.mesh
@@ -119,12 +130,7 @@ def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
     prostate_faces = [t for _, t in gmsh.model.getBoundary([(3, v) for v in pieces["prostate"]], oriented=False)]
     dist = field.add("Distance")
     field.setNumbers(dist, "SurfacesList", prostate_faces)
-    near = field.add("Threshold")
-    field.setNumber(near, "InField", dist)
-    field.setNumber(near, "SizeMin", size.prostate_mm)
-    field.setNumber(near, "SizeMax", size.max_mm)
-    field.setNumber(near, "DistMin", 0.0)
-    field.setNumber(near, "DistMax", 25.0)
+    near = _threshold(field, dist, size_min=size.prostate_mm, size_max=size.max_mm, dist_max_mm=25.0)
     tip = field.add("Ball")
     field.setNumber(tip, "Radius", 1.5 * scene.guide.patch_radius_mm)
     field.setNumber(tip, "Thickness", 2.0 * scene.guide.patch_radius_mm)
@@ -137,12 +143,7 @@ def _size_field(gmsh, scene: Scene, pieces: dict[str, list[int]]) -> None:
         fine = field.add("Distance")  # sampled finely enough for sub-mm sizes (the default 20 per direction is not)
         field.setNumbers(fine, "SurfacesList", prostate_faces)
         field.setNumber(fine, "Sampling", 200)
-        shell = field.add("Threshold")
-        field.setNumber(shell, "InField", fine)
-        field.setNumber(shell, "SizeMin", size.surface_near_tip_mm)
-        field.setNumber(shell, "SizeMax", size.max_mm)
-        field.setNumber(shell, "DistMin", 0.0)
-        field.setNumber(shell, "DistMax", 5.0)
+        shell = _threshold(field, fine, size_min=size.surface_near_tip_mm, size_max=size.max_mm, dist_max_mm=5.0)
         zone = field.add("Ball")  # max_mm outside: Max(shell, zone) is the shell inside the ball only
         field.setNumber(zone, "Radius", 2.0 * scene.guide.patch_radius_mm)
         field.setNumber(zone, "Thickness", scene.guide.patch_radius_mm)
