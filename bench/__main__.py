@@ -3,4 +3,11 @@ import sys
 import bench
 from studies._cli import dispatch
 
-sys.exit(dispatch(bench))
+
+def main() -> int:
+    """`python -m bench` / `deform-bench`."""
+    return dispatch(bench)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
