@@ -1,6 +1,9 @@
 """The model folder: what training writes and the service reads.
 
-    model.onnx     guide float32 [batch, 2] (+ optional nodes int64 [k]) -> displacement float32 [batch, k, 3] mm
+    model.onnx     guide float32 [batch, 2] (+ optional nodes int64 [k]) -> displacement float32 [batch, k, 3] mm;
+                   a material model (manifest `materials`) also takes materials and materials_std float32
+                   [batch, m] (ln(E/E_nominal) and its std, in the manifest's order) and gives displacement_std
+                   float32 [batch, k, 3] mm (training/material_graph.py)
     mesh.npz       the reference mesh (contracts.mesh) + region/<name> node ids + surface/<tissue> triangles
     report.md      the held-out accuracy, laid out like the paper's Table 3
     manifest.json  ModelManifest: what produced the model and how accurate it is, sha256 of every file
@@ -22,6 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from .envelope import Envelope
+from .materials import MaterialsInfo
 from .files import read_manifest_json, sha256
 from .mesh import TetMesh, mesh_arrays, read_mesh
 from .sweep import LabelMapSource
@@ -191,6 +195,7 @@ class ModelManifest(_Frozen):
     timing: Timing
     versions: dict[str, str]
     source: LabelMapSource | None = None  # the segmentation of a label-map scene (from the sweep's manifest)
+    materials: MaterialsInfo | None = None  # the tissue stiffnesses the model takes as inputs; None: none
     regions: dict[str, int] = {}  # name -> node count; filled by the writer
     files: dict[str, str] = {}  # name -> sha256; filled by the writer
 

@@ -1,4 +1,4 @@
-"""Command line: `python -m fem_offline solve|sweep|cases|mesh ...`; bad input gets one line, exit code 2."""
+"""Command line: `python -m fem_offline solve|sweep|cases|material-cases|mesh ...`; bad input gets one line, exit code 2."""
 
 from __future__ import annotations
 
@@ -42,6 +42,15 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one case each (default 2)")
     c.add_argument("--sweep", type=Path, help="a finished sweep of the same scene on the same mesh: start each case from its "
                    "fields around it instead of load-stepping from rest (same equilibrium; default: from rest)")
+
+    k = sub.add_parser("material-cases", help="fresh solves at the ends of the scene's material ranges, to check the "
+                       "first-order material model (training material-check; resumable)")
+    k.add_argument("--scene", required=True, type=Path)
+    k.add_argument("--out", required=True, type=Path, help="output folder (material_NNN.npz)")
+    k.add_argument("--mesh", type=Path, help="the sweep's mesh.npz (default: mesh the scene)")
+    k.add_argument("--case", action="append", help="guide position D/A in mm/deg (repeatable; default: the largest "
+                   "push at 0 deg and at the largest angle)")
+    k.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes (default 2)")
 
     m = sub.add_parser("mesh", help="mesh the scene and write it (.npz, .vtu, .msh or .xdmf)")
     m.add_argument("--scene", required=True, type=Path)
@@ -128,6 +137,20 @@ def _cases(args) -> int:
     return 1 if failures else 0
 
 
+def _material_cases(args) -> int:
+    from fem_offline.geometry.meshing import load_or_build_mesh
+    from fem_offline.material_cases import default_positions, solve_material_cases
+
+    scene = load_scene(args.scene)
+    try:
+        positions = [tuple(float(v) for v in c.split("/")) for c in args.case] if args.case else default_positions(scene)
+    except ValueError:
+        raise ValueError(f"--case: expected DISPLACEMENT_MM/ANGLE_DEG like 10/0, got {args.case}") from None
+    files = solve_material_cases(scene, load_or_build_mesh(scene, args.mesh), args.out, positions, workers=args.workers)
+    print(f"{args.out}: {len(files)} guide positions, each at {2 * len(scene.materials or {}) + 2} material points")
+    return 0
+
+
 def _mesh(args) -> None:
     from fem_offline.geometry.mesh import save
     from fem_offline.geometry.meshing import mesh_for_scene
@@ -145,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     from fem_offline.fe.newton import ConvergenceError
 
     try:
-        return {"solve": _solve, "sweep": _sweep, "cases": _cases, "mesh": _mesh}[args.command](args) or 0
+        return {"solve": _solve, "sweep": _sweep, "cases": _cases, "material-cases": _material_cases,
+                "mesh": _mesh}[args.command](args) or 0
     except (SceneError, ValueError, ConvergenceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

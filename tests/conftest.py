@@ -44,3 +44,41 @@ def tiny_model(tiny_sweep, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("models") / "tiny"
     fit(tiny_sweep, out, FitOptions(rank=8, max_iterations=300, test_cases=TINY_TEST_CASES), progress=False)
     return out
+
+
+TINY_MATERIALS = {  # every soft tissue's stiffness as an input, around tiny.toml's (default.toml's) E
+    "prostate": {"youngs_kpa_range": [50.0, 85.0], "std_percent": 20.0, "source": "test"},
+    "rectal_wall": {"youngs_kpa_range": [140.0, 215.0], "std_percent": 20.0, "source": "test"},
+    "adipose": {"youngs_kpa_range": [8.5, 13.5], "std_percent": 20.0, "source": "test"},
+    "bladder": {"youngs_kpa_range": [80.0, 125.0], "std_percent": 20.0, "source": "test"},
+}
+
+
+def tiny_material_scene(**materials):
+    """tiny.toml, linear and glued (superposable: seconds), with material inputs (default: TINY_MATERIALS)."""
+    from fem_offline.scene import load_scene
+
+    return load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False, "guide_contact": False},
+                      materials=materials or TINY_MATERIALS,
+                      sweep={"displacement_step_mm": 1.0, "displacement_max_mm": 10.0, "angle_min_deg": -10.0,
+                             "angle_max_deg": 10.0, "angle_step_deg": 2.0})
+
+
+@pytest.fixture(scope="session")
+def tiny_material_sweep(tmp_path_factory) -> Path:
+    """tiny_sweep's grid, superposed, with S_i = du/d ln E_i of the four soft tissues in every snapshot."""
+    from fem_offline.sweep import run_sweep
+
+    out = tmp_path_factory.mktemp("material_sweep")
+    assert run_sweep(tiny_material_scene(), out).n_done == 110
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_material_model(tiny_material_sweep, tmp_path_factory) -> Path:
+    """A material model on tiny_material_sweep (answers for 0..5 mm, like tiny_model)."""
+    from training.fit import FitOptions, fit
+
+    out = tmp_path_factory.mktemp("models") / "tiny_materials"
+    fit(tiny_material_sweep, out, FitOptions(rank=12, max_iterations=300, test_cases=TINY_TEST_CASES), progress=False)
+    return out

@@ -1,5 +1,6 @@
 """Command line: `python -m training fit --snapshots DIR --out models/NAME`, `python -m training restamp --model
-models/NAME --fe-error JSON`; bad input gets one line, exit code 2."""
+models/NAME --fe-error JSON`, `python -m training material-check --model models/NAME --cases DIR`; bad input gets
+one line, exit code 2."""
 
 from __future__ import annotations
 
@@ -48,7 +49,24 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
     r.add_argument("--fe-error", required=True, type=Path,
                    help="`python -m studies model-vs-converged`'s JSON for this model (docs/results/fe_error_default.json)")
+    k = sub.add_parser("material-check", help="stamp a material model with its first-order material model's error "
+                       "against fresh FE (`fem_offline material-cases`), without refitting")
+    k.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
+    k.add_argument("--cases", required=True, type=Path, help="a `fem_offline material-cases` output folder on its mesh")
     return ap
+
+
+def _material_check(args) -> int:
+    from .materials import stamp
+
+    try:
+        manifest = stamp(args.model, args.cases)
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for name, r in manifest.materials.accuracy.regions.items():
+        print(f"{args.model}: {name}: first order vs fresh FE {r.first_order_mm:.4f} mm, model {r.model_mm:.4f} mm")
+    return 0
 
 
 def _restamp(args) -> int:
@@ -68,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if args.command == "restamp":
         return _restamp(args)
+    if args.command == "material-check":
+        return _material_check(args)
     from .fit import PAPER_TEST_CASES, FitOptions, fit, summary_line
 
     options = FitOptions(rank=args.rank, width=args.width, depth=args.depth, max_iterations=args.iterations,

@@ -25,6 +25,8 @@ from contracts import model as folder
 from contracts.model import PAPER_TEST_CASES, FitOptions, onnx_session
 
 from .export import build_graph, folded_layers, reference_decode
+from .material_graph import build_material_graph, reference_decode_materials
+from .materials import materials_info, sensitivity_rows
 from .metrics import ANGLE_FLOOR_MM, case_errors, summarise
 from .pca import Pca, fit_pca
 from .snapshots import Snapshots, read_offgrid, read_sweep, valid_part
@@ -66,22 +68,37 @@ class Surrogate:
     input_scale: np.ndarray
     info: dict  # iterations, final_loss, seconds, seed
     pca_seconds: float
+    n_materials: int = 0  # material inputs (material_graph.py); 0: the plain graph (export.py)
 
     def onnx_bytes(self, dtype=np.float32) -> bytes:
+        if self.n_materials:
+            return build_material_graph(self.layers, self.pca, self.n_materials, dtype=dtype).SerializeToString()
         return build_graph(self.layers, self.pca, dtype=dtype).SerializeToString()
 
+    def reference(self, guide: np.ndarray, theta=None, sigma=None) -> np.ndarray:
+        """The float64 numpy displacement (batch, n_nodes, 3) the graph computes (nominal materials unless theta)."""
+        if self.n_materials:
+            return reference_decode_materials(self.layers, self.pca, self.n_materials, guide, theta, sigma)[0]
+        return reference_decode(self.layers, self.pca, guide)
 
-def fit_surrogate(inputs: np.ndarray, rows: np.ndarray, options: FitOptions, *, progress=None) -> Surrogate:
-    """PCA of the rows (n, 3 n_nodes) to options.rank modes, then the network from inputs (n, 2) to the coefficients."""
+
+def fit_surrogate(inputs: np.ndarray, rows: np.ndarray, options: FitOptions, *, sensitivity: list[np.ndarray] = (),
+                  progress=None) -> Surrogate:
+    """PCA of the rows (n, 3 n_nodes) to options.rank modes, then the network from inputs (n, 2) to the coefficients.
+
+    With `sensitivity` (per material tissue S_i / d rows like `rows`), one basis is fitted on all the rows stacked,
+    and the network gives the coefficients of u / d and of each S_i / d side by side ((1 + m) x rank outputs)."""
     from .network import train
 
     t0 = time.perf_counter()
-    pca = fit_pca(rows, options.rank)
+    pca = fit_pca(np.vstack([rows, *sensitivity]) if len(sensitivity) else rows, options.rank)
     pca_seconds = time.perf_counter() - t0
     log.info("PCA rank %d captures %.8f of the variance (%.1f s)", pca.rank, pca.energy, pca_seconds)
-    net, scaling, info = train(inputs, pca.encode(rows), width=options.width, depth=options.depth,
+    targets = np.hstack([pca.encode(r) for r in (rows, *sensitivity)]) if len(sensitivity) else pca.encode(rows)
+    net, scaling, info = train(inputs, targets, width=options.width, depth=options.depth,
                                max_iterations=options.max_iterations, seed=options.seed, progress=progress)
-    return Surrogate(pca, folded_layers(net, scaling), scaling.input_center, scaling.input_scale, info, pca_seconds)
+    return Surrogate(pca, folded_layers(net, scaling), scaling.input_center, scaling.input_scale, info, pca_seconds,
+                     n_materials=len(sensitivity))
 
 
 def evaluate(session, inputs: np.ndarray, reference: np.ndarray) -> list[folder.CaseErrors]:
@@ -235,7 +252,7 @@ def _metrics(session, surrogate: Surrogate, data: Snapshots, test, inputs, offgr
     probe = np.concatenate([data.inputs[test], inputs[[0, -1]], [[0.0, data.inputs[0, 1]]]])
     parity = float(np.abs(
         np.concatenate([session.run(None, {"guide": p[None].astype(np.float32)})[0] for p in probe])
-        - reference_decode(surrogate.layers, surrogate.pca, probe)).max())
+        - surrogate.reference(probe)).max())
     return folder.Metrics(angle_floor_mm=ANGLE_FLOOR_MM, table3=table3, table3_summary=summarise(table3),
                           offgrid=offgrid_rows, offgrid_summary=summarise(offgrid_rows) if offgrid_rows else None,
                           onnx_vs_float64_max_abs_mm=parity)
@@ -276,12 +293,13 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     if fe is None and fe_estimate is not None:
         fe = fe_label_map_estimate(fe_estimate, sweep.manifest)
     test, inputs, rows = training_set(data, test_cases)
+    sens_rows = sensitivity_rows(data.sensitivity, data.inputs, ~test & (data.inputs[:, 0] > 0))
     if len(rows) <= options.rank:
         where = f" up to {cut.valid_up_to_mm:g} mm, where the sweep stops being valid," if cut is not None else ""
         raise ValueError(f"--rank: {len(rows)} snapshots{where} are left to train on once {int(test.sum())} are held "
                          f"out; {options.rank} modes need at least {options.rank + 1}")
     with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
-        surrogate = fit_surrogate(inputs, rows, options, progress=bar.update)
+        surrogate = fit_surrogate(inputs, rows, options, sensitivity=sens_rows, progress=bar.update)
     onnx_bytes = surrogate.onnx_bytes()
     session = onnx_session(onnx_bytes)
     metrics = _metrics(session, surrogate, data, test, inputs, cases)
@@ -291,6 +309,17 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     accuracy = _accuracy(region_errors(session, held_in, held_ref, sweep.mesh.node_sets), fe)
     s2 = surrogate.pca.singular_values**2
     m = sweep.manifest
+    materials = materials_info(m.scene)
+    onnx_in = {"guide": "float32 [batch, 2]", "nodes": "int64 [k], optional, empty = all"}
+    onnx_out = {"displacement": "float32 [batch, k, 3] mm"}
+    output = "displacement = d x decoded field (exactly 0 at rest)"
+    if materials is not None:
+        onnx_in.update(materials=f"float32 [batch, {surrogate.n_materials}], optional, {materials.parameter} per tissue "
+                       "in materials.inputs order (0 = nominal)",
+                       materials_std=f"float32 [batch, {surrogate.n_materials}], optional, the std of ln E (0 = none)")
+        onnx_out["displacement_std"] = "float32 [batch, k, 3] mm, sqrt(sum_i (S_i sigma_i)^2) per component"
+        output = ("displacement = d x (f0 + sum_i theta_i s_i), f0 and s_i = S_i / d decoded by one basis from (1 + m) x "
+                  "rank network outputs; displacement_std = d x sqrt(sum_i (sigma_i s_i)^2) (exactly 0 at rest)")
     manifest = folder.ModelManifest(
         name=Path(out).name,
         created_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -303,19 +332,19 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
                            energy_by_rank=[float(v) for v in np.cumsum(s2)[:64] / s2.sum()]),
         network=folder.NetworkInfo(inputs=["displacement_mm", "angle_deg"], width=options.width, depth=options.depth,
                                    activation="tanh", optimizer="L-BFGS, variable projection", **surrogate.info,
-                                   n_train=len(inputs), output="displacement = d x decoded field (exactly 0 at rest)"),
+                                   n_train=len(inputs), output=output),
         normalisation=folder.Normalisation(input_center=surrogate.input_center.tolist(),
                                            input_scale=surrogate.input_scale.tolist()),
         envelope=envelope,
         envelope_cut=cut,
-        onnx=folder.OnnxInfo(opset=17, inputs={"guide": "float32 [batch, 2]", "nodes": "int64 [k], optional, empty = all"},
-                             outputs={"displacement": "float32 [batch, k, 3] mm"}, basis_dtype="float32"),
+        onnx=folder.OnnxInfo(opset=17, inputs=onnx_in, outputs=onnx_out, basis_dtype="float32"),
         metrics=metrics,
         accuracy=accuracy,
         timing=folder.Timing(pca_seconds=surrogate.pca_seconds, train_seconds=surrogate.info["seconds"],
                              total_seconds=time.perf_counter() - t_start),
         versions=_versions(),
         source=m.source,
+        materials=materials,
     )
     report = table3_markdown(manifest, PAPER_TABLE3)
     return folder.write_model_folder(out, onnx_bytes=onnx_bytes, mesh=sweep.mesh, manifest=manifest, report=report)

@@ -59,6 +59,7 @@ def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
                   f"Worst: e_NN {o.e_nn_mm:.4f} mm, α {o.alpha_deg:.3f}°, e_r {o.e_r_percent:.3f} %."]
     lines += ["", f"ONNX (float32) vs float64 numpy reference: max {m.onnx_vs_float64_max_abs_mm:.2e} mm.", ""]
     lines += _accuracy_lines(manifest)
+    lines += _material_lines(manifest)
     return "\n".join(lines)
 
 
@@ -80,3 +81,23 @@ def _no_fe_band(manifest) -> bool:
     """True when the model states no FE discretisation error (fitted without --fe-error)."""
     acc = manifest.accuracy
     return acc is None or all(r.fe_discretisation_mm is None for r in acc.regions.values())
+
+
+def _material_lines(manifest: ModelManifest) -> list[str]:
+    """The material inputs (ranges, default std) and the first-order material model's check against fresh FE."""
+    info = manifest.materials
+    if info is None:
+        return []
+    lines = ["## Material inputs", "", f"Each input is {info.parameter}; the answer is first order in it.", "",
+             "| tissue | nominal E (kPa) | range (kPa) | default std (%) | source |", "|---|---|---|---|---|"]
+    for m in info.inputs:
+        lines.append(f"| {m.tissue} | {m.nominal_youngs_kpa:g} | {m.youngs_kpa_range[0]:g} to {m.youngs_kpa_range[1]:g} | "
+                     f"{m.std_percent:g} | {m.source} |")
+    acc = info.accuracy
+    if acc is None:
+        return lines + ["", "The first-order material model is not checked against fresh FE solves for this model "
+                        "(`python -m training material-check`).", ""]
+    lines += ["", f"Checked against {acc.reference}.", "",
+              "| region | first order vs fresh FE (mm) | model vs fresh FE (mm) |", "|---|---|---|"]
+    lines += [f"| {k} | {r.first_order_mm:.4f} | {r.model_mm:.4f} |" for k, r in acc.regions.items()]
+    return lines + [""]

@@ -25,16 +25,18 @@ class Snapshots:
     inputs: np.ndarray  # (n, 2): displacement_mm, angle_deg
     displacement: np.ndarray  # (n, n_nodes, 3) mm, float64
     reference_positions: np.ndarray  # (n_nodes, 3) mm
+    sensitivity: dict[str, np.ndarray] | None = None  # tissue -> S_i (n, n_nodes, 3) mm per ln E; None: no materials
 
     def __len__(self) -> int:
         return len(self.inputs)
 
     def select(self, mask: np.ndarray) -> Snapshots:
-        return Snapshots(self.inputs[mask], self.displacement[mask], self.reference_positions)
+        sens = None if self.sensitivity is None else {k: v[mask] for k, v in self.sensitivity.items()}
+        return Snapshots(self.inputs[mask], self.displacement[mask], self.reference_positions, sens)
 
 
 def snapshots_of(sweep: Sweep) -> Snapshots:
-    return Snapshots(sweep.inputs, sweep.displacement, sweep.mesh.nodes)
+    return Snapshots(sweep.inputs, sweep.displacement, sweep.mesh.nodes, sweep.sensitivity)
 
 
 def valid_part(sweep: Sweep) -> tuple[Snapshots, Envelope, EnvelopeCut | None]:

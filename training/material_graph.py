@@ -1,0 +1,138 @@
+"""The ONNX graph of a material model: u0 and the m sensitivities decoded by one basis, combined to first order.
+
+Inputs:  guide float32 [batch, 2] = (displacement_mm, angle_deg)
+         materials float32 [batch, m], optional (default 0): theta_i = ln(E_i / E_i,nominal), manifest order
+         materials_std float32 [batch, m], optional (default 0): sigma_i, the std of ln E_i
+         nodes int64 [k], optional (default: empty = every node)
+Outputs: displacement float32 [batch, k, 3] mm      u0 + sum_i theta_i S_i
+         displacement_std float32 [batch, k, 3] mm  sqrt(sum_i (sigma_i S_i)^2), per component
+
+The network gives (1 + m) x rank coefficients per case: c_0 for f0 = u0 / d and c_i for S_i / d, all decoded by
+the same PCA basis (fitted on the u and the S rows together) as d (mean + c basis), as export.py decodes u.
+The m + 1 fields are one Gemm of (batch (1 + m), rank + 1) weights with the basis, in either branch of the
+`If` on the node subset, so a subset call still gathers only its 3k basis rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper
+
+from .export import OPSET, _init
+from .pca import Pca
+
+
+def reference_decode_materials(layers, pca: Pca, n_materials: int, guide: np.ndarray, theta: np.ndarray | None = None,
+                               sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 numpy forward pass: (displacement, displacement_std), each (batch, n_nodes, 3)."""
+    h = np.asarray(guide, dtype=np.float64)
+    d = h[:, :1]
+    for w, b in layers[:-1]:
+        h = np.tanh(h @ w + b)
+    w, b = layers[-1]
+    coef = (h @ w + b).reshape(len(h), 1 + n_materials, -1)  # (batch, 1 + m, rank)
+    fields = d[:, :, None] * pca.decode(coef)  # (batch, 1 + m, 3 n_nodes)
+    theta = np.zeros((len(h), n_materials)) if theta is None else np.asarray(theta, dtype=np.float64)
+    sigma = np.zeros((len(h), n_materials)) if sigma is None else np.asarray(sigma, dtype=np.float64)
+    u = fields[:, 0] + np.einsum("bm,bmn->bn", theta, fields[:, 1:])
+    std = np.sqrt(np.einsum("bm,bmn->bn", sigma**2, fields[:, 1:] ** 2))
+    return u.reshape(len(h), -1, 3), std.reshape(len(h), -1, 3)
+
+
+def _branches(basis: str, n_comp: int):
+    """(subset, full): each the flat fields (batch (1 + m), 3k) of the weights `w2` and the basis rows it needs."""
+    full = helper.make_graph(
+        [helper.make_node("Gemm", ["w2", basis], ["flat_full"], transB=1)],
+        "full_mesh", [], [helper.make_tensor_value_info("flat_full", TensorProto.FLOAT, ["rows", n_comp])])
+    subset = helper.make_graph(
+        [  # components 3i, 3i+1, 3i+2 of each requested node i
+            helper.make_node("Unsqueeze", ["nodes", "axis1"], ["nodes_col"]),
+            helper.make_node("Mul", ["nodes_col", "three"], ["first"]),
+            helper.make_node("Add", ["first", "xyz"], ["comp_2d"]),
+            helper.make_node("Reshape", ["comp_2d", "flat"], ["comp"]),
+            helper.make_node("Gather", [basis, "comp"], ["basis_k"], axis=0),
+            helper.make_node("Gemm", ["w2", "basis_k"], ["flat_k"], transB=1),
+        ],
+        "node_subset", [], [helper.make_tensor_value_info("flat_k", TensorProto.FLOAT, ["rows", "k3"])])
+    return subset, full
+
+
+def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32) -> onnx.ModelProto:
+    """The material model's ONNX graph (module docstring); `dtype` is the basis precision."""
+    m, n_comp, rank = n_materials, pca.basis.shape[1], pca.basis.shape[0]
+    inits = [_init("basis", np.ascontiguousarray(np.vstack([pca.basis, pca.mean]).T).astype(dtype))]
+    nodes, h = [helper.make_node("Slice", ["guide", "zero1", "one1", "one1"], ["d"])], "guide"
+    for i, (w, b) in enumerate(layers):
+        inits += [_init(f"w{i}", w.astype(np.float32)), _init(f"b{i}", b.astype(np.float32))]
+        out = "coefficients" if i == len(layers) - 1 else f"z{i}"
+        nodes.append(helper.make_node("Gemm", [h, f"w{i}", f"b{i}"], [out]))
+        if i < len(layers) - 1:
+            nodes.append(helper.make_node("Tanh", [out], [f"h{i}"]))
+            h = f"h{i}"
+    basis = "basis"
+    if dtype != np.float32:
+        nodes.append(helper.make_node("Cast", ["basis"], ["basis32"], to=TensorProto.FLOAT))
+        basis = "basis32"
+    subset, full = _branches(basis, n_comp)
+    nodes += [
+        # weights [d c_j, d] per field j (batch, 1 + m, rank + 1), as rows (batch (1 + m), rank + 1)
+        helper.make_node("Reshape", ["coefficients", "coef_shape"], ["coef3"]),
+        helper.make_node("Unsqueeze", ["d", "axis2"], ["d3"]),
+        helper.make_node("Mul", ["coef3", "d3"], ["d_coef3"]),
+        helper.make_node("Mul", ["ones_fields", "d3"], ["d_col"]),
+        helper.make_node("Concat", ["d_coef3", "d_col"], ["w3"], axis=2),
+        helper.make_node("Reshape", ["w3", "w_shape"], ["w2"]),
+        helper.make_node("Size", ["nodes"], ["n_requested"]),
+        helper.make_node("Greater", ["n_requested", "zero"], ["is_subset"]),
+        helper.make_node("If", ["is_subset"], ["flat_fields"], then_branch=subset, else_branch=full),
+        # fields (batch, 1 + m, k, 3): u0 / nothing else, then S_1 .. S_m
+        helper.make_node("Shape", ["guide"], ["guide_shape"]),
+        helper.make_node("Slice", ["guide_shape", "zero1", "one1"], ["batch"]),
+        helper.make_node("Concat", ["batch", "fields_tail"], ["fields_shape"], axis=0),
+        helper.make_node("Reshape", ["flat_fields", "fields_shape"], ["fields"]),
+        helper.make_node("Slice", ["fields", "zero1", "one1", "one1"], ["u0_4"]),
+        helper.make_node("Squeeze", ["u0_4", "one1"], ["u0"]),
+        helper.make_node("Slice", ["fields", "one1", "m_end", "one1"], ["sens"]),
+        helper.make_node("Unsqueeze", ["materials", "axes23"], ["theta4"]),
+        helper.make_node("Mul", ["sens", "theta4"], ["sens_theta"]),
+        helper.make_node("ReduceSum", ["sens_theta", "one1"], ["shift"], keepdims=0),
+        helper.make_node("Add", ["u0", "shift"], ["displacement"]),
+        helper.make_node("Unsqueeze", ["materials_std", "axes23"], ["sigma4"]),
+        helper.make_node("Mul", ["sens", "sigma4"], ["sens_sigma"]),
+        helper.make_node("Mul", ["sens_sigma", "sens_sigma"], ["variance_terms"]),
+        helper.make_node("ReduceSum", ["variance_terms", "one1"], ["variance"], keepdims=0),
+        helper.make_node("Sqrt", ["variance"], ["displacement_std"]),
+    ]
+    inits += [
+        _init("zero", np.array(0, dtype=np.int64)),
+        _init("zero1", np.array([0], dtype=np.int64)),
+        _init("one1", np.array([1], dtype=np.int64)),
+        _init("axis1", np.array([1], dtype=np.int64)),
+        _init("axis2", np.array([2], dtype=np.int64)),
+        _init("axes23", np.array([2, 3], dtype=np.int64)),
+        _init("xyz", np.arange(3, dtype=np.int64)[None, :]),
+        _init("three", np.array(3, dtype=np.int64)),
+        _init("flat", np.array([-1], dtype=np.int64)),
+        _init("coef_shape", np.array([0, 1 + m, rank], dtype=np.int64)),
+        _init("w_shape", np.array([-1, rank + 1], dtype=np.int64)),
+        _init("ones_fields", np.ones((1, 1 + m, 1), dtype=np.float32)),
+        _init("fields_tail", np.array([1 + m, -1, 3], dtype=np.int64)),
+        _init("m_end", np.array([1 + m], dtype=np.int64)),
+        _init("nodes", np.zeros(0, dtype=np.int64)),  # optional inputs' defaults: every node, nominal, no std
+        _init("materials", np.zeros((1, m), dtype=np.float32)),
+        _init("materials_std", np.zeros((1, m), dtype=np.float32)),
+    ]
+    graph = helper.make_graph(
+        nodes, "prostate_deformation_materials",
+        inputs=[helper.make_tensor_value_info("guide", TensorProto.FLOAT, ["batch", 2]),
+                helper.make_tensor_value_info("materials", TensorProto.FLOAT, ["batch", m]),
+                helper.make_tensor_value_info("materials_std", TensorProto.FLOAT, ["batch", m]),
+                helper.make_tensor_value_info("nodes", TensorProto.INT64, ["k"])],
+        outputs=[helper.make_tensor_value_info("displacement", TensorProto.FLOAT, ["batch", "k", 3]),
+                 helper.make_tensor_value_info("displacement_std", TensorProto.FLOAT, ["batch", "k", 3])],
+        initializer=inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="prostate-deform")
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    return model

@@ -1,0 +1,117 @@
+"""Training's side of the material inputs: the S rows a model is fitted on, the manifest's inputs, and the check
+of the first-order material model against fresh FE solves at held-out material points.
+
+A material sweep stores S_i = du/d ln E_i at every snapshot (contracts.sweep). Like u, S_i vanishes at rest and
+grows with the push, so it is fitted as S_i / d; the PCA basis is fitted on the u / d and every S_i / d row
+together, and the network gives (1 + m) x rank coefficients (material_graph.py decodes them).
+
+The check (`python -m training material-check --model M --cases DIR`) reads the cases `fem_offline
+material-cases` solved: at a few guide positions, the nominal u0 and S_i, and fresh FE solves at material points
+theta (each tissue at both ends of its range, and all at once). Per region it records the largest error of
+the first-order model u0 + sum S_i theta_i against the fresh solve (the material part alone), and of the served
+ONNX model against it (surrogate + first order), into the manifest's materials.accuracy.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from contracts.materials import (PARAMETER, MaterialAccuracy, MaterialInput, MaterialRegionAccuracy, MaterialsInfo,
+                                 sensitivity_key, youngs_from_shear_wave_kpa)
+
+CASE_GLOB = "material_*.npz"
+
+
+def sensitivity_rows(sensitivity: dict[str, np.ndarray] | None, inputs: np.ndarray, keep: np.ndarray) -> list[np.ndarray]:
+    """Per material tissue the rows S_i / d (n_kept, 3 n_nodes) of the kept snapshots (as training_set keeps u / d)."""
+    if not sensitivity:
+        return []
+    d = inputs[keep, :1]
+    return [s[keep].reshape(int(keep.sum()), -1) / d for s in sensitivity.values()]
+
+
+def materials_info(scene: dict) -> MaterialsInfo | None:
+    """The manifest's material inputs from a sweep's scene (its JSON), in the scene's order; None without [materials]."""
+    spec = scene.get("materials")
+    if not spec:
+        return None
+    inputs = []
+    for name, m in spec.items():
+        t = scene["tissues"][name]
+        youngs = t.get("youngs_kpa") or youngs_from_shear_wave_kpa(
+            shear_wave_speed_m_s=t["shear_wave_speed_m_s"], density_kg_m3=t["density_kg_m3"], poisson=t["poisson"])
+        inputs.append(MaterialInput(tissue=name, nominal_youngs_kpa=youngs, youngs_kpa_range=tuple(m["youngs_kpa_range"]),
+                                    std_percent=m["std_percent"], poisson=t["poisson"], density_kg_m3=t["density_kg_m3"],
+                                    source=m.get("source", "")))
+    return MaterialsInfo(parameter=PARAMETER, inputs=inputs)
+
+
+def read_material_cases(folder: str | Path, tissues: list[str]) -> list[dict]:
+    """The cases of a `fem_offline material-cases` folder: guide (2,), u0 (n_nodes, 3), S (m, n_nodes, 3) and theta
+    (p, m) in `tissues` order (a tissue the case does not vary: theta 0), and the fresh solves (p, n_nodes, 3)."""
+    files = sorted(Path(folder).glob(CASE_GLOB))
+    if not files:
+        raise ValueError(f"--cases: no {CASE_GLOB} in {folder}")
+    cases = []
+    for f in files:
+        with np.load(f) as z:
+            varied = [str(t) for t in z["tissues"]]
+            if set(varied) - set(tissues):
+                raise ValueError(f"--cases: {f.name} varies {varied}, the model takes {tissues}")
+            theta = np.zeros((len(z["theta"]), len(tissues)))  # a tissue the case does not vary stays nominal
+            sens = np.zeros((len(tissues), *z["displacement"].shape))
+            for i, t in enumerate(tissues):
+                if t in varied:
+                    theta[:, i], sens[i] = z["theta"][:, varied.index(t)], z[sensitivity_key(t)]
+            cases.append({"guide": np.array([float(z["displacement_mm"]), float(z["angle_deg"])]),
+                          "u0": z["displacement"], "sens": sens, "theta": theta, "fresh": z["fresh"]})
+    return cases
+
+
+def first_order_errors(cases: list[dict], session, node_sets: dict, regions: tuple[str, ...]) -> MaterialAccuracy:
+    """Largest nodal error (mm) per region over every case and material point: the first-order FE model and the
+    ONNX model (inputs guide, materials) against the fresh FE solves."""
+    worst = {r: [0.0, 0.0] for r in regions}
+    n = 0
+    for c in cases:
+        for theta, fresh in zip(c["theta"], c["fresh"]):
+            linear = c["u0"] + np.einsum("m,mnk->nk", theta, c["sens"])
+            model = session.run(["displacement"], {"guide": c["guide"][None].astype(np.float32),
+                                                   "materials": theta[None].astype(np.float32)})[0][0]
+            errors = (np.linalg.norm(linear - fresh, axis=1), np.linalg.norm(model - fresh, axis=1))
+            for r in regions:
+                ids = node_sets.get(r, slice(None)) if r != "all_nodes" else slice(None)
+                worst[r] = [max(w, float(e[ids].max())) for w, e in zip(worst[r], errors)]
+            n += 1
+    points = ", ".join(f"{c['guide'][0]:g} mm / {c['guide'][1]:g} deg" for c in cases)
+    reference = (f"fresh FE solves on the model's mesh at {n} material points (each tissue at both ends of its declared "
+                 f"range, and every tissue at once), at the guide positions {points}: the first-order model u0 + sum_i "
+                 "S_i ln(E_i/E_i0) from the nominal solve's sensitivities, and the ONNX model, against them")
+    return MaterialAccuracy(reference=reference, n_points=n, regions={
+        r: MaterialRegionAccuracy(first_order_mm=a, model_mm=b) for r, (a, b) in worst.items()})
+
+
+def stamp(model: Path, cases: Path):
+    """A material model folder's manifest (and report.md) stamped with its check against the cases' fresh FE
+    solves, without refitting (as fit.restamp): the ONNX graph and the mesh stay as they are."""
+    from contracts.files import atomic_write_text, sha256
+    from contracts.model import onnx_session, read_model_folder
+
+    from .fit import PAPER_TABLE3, REGIONS
+    from .report import table3_markdown
+
+    current = read_model_folder(model)
+    info = current.manifest.materials
+    if info is None:
+        raise ValueError(f"--model: {model} takes no material inputs (its sweep's scene has no [materials])")
+    found = read_material_cases(cases, info.tissues)
+    if any(c["u0"].shape != current.mesh.nodes.shape for c in found):
+        raise ValueError(f"--cases: {cases} holds cases on another mesh than {model}'s")
+    accuracy = first_order_errors(found, onnx_session(Path(model) / "model.onnx"), current.regions, REGIONS)
+    manifest = current.manifest.model_copy(update={"materials": info.model_copy(update={"accuracy": accuracy})})
+    atomic_write_text(Path(model) / "report.md", table3_markdown(manifest, PAPER_TABLE3))
+    manifest = manifest.model_copy(update={"files": {**manifest.files, "report.md": sha256(Path(model) / "report.md")}})
+    atomic_write_text(Path(model) / "manifest.json", manifest.model_dump_json(indent=2) + "\n")
+    return manifest
