@@ -7,6 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 import orjson
 
+from contracts.materials import MaterialsInfo
+
+from . import materials
 from .model import ModelFolder
 from .settings import Settings
 
@@ -21,6 +24,7 @@ class ModelInfo:
     bounds_mm: tuple[list[float], list[float]]
     summary: dict  # the GET /model reply
     mesh_json: bytes  # the GET /mesh reply
+    materials: MaterialsInfo | None = None  # the stiffness inputs of a material model (service/materials.py)
 
 
 def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
@@ -43,8 +47,11 @@ def model_info(folder: ModelFolder, settings: Settings) -> ModelInfo:
                     "angle_floor_mm": metrics.angle_floor_mm},
         "source": m.source.model_dump() if m.source else None,  # the segmentation a label-map model was built from
         "limits": {"max_points": settings.max_points, "max_body_bytes": settings.max_body_bytes},
+        # the tissue stiffnesses the model takes (ranges, units, nominal, default std); null: none
+        "materials": materials.summary(m.materials) if m.materials is not None else None,
     }
     mesh_json = orjson.dumps({"nodes": nodes32, "tissues": m.mesh.tissues, "surfaces": folder.surfaces},
                              option=orjson.OPT_SERIALIZE_NUMPY)
     return ModelInfo(name=m.name, displacement_mm=m.envelope.displacement_mm, angle_deg=m.envelope.angle_deg,
-                     regions=tuple(sorted(m.regions)), bounds_mm=(lo, hi), summary=summary, mesh_json=mesh_json)
+                     regions=tuple(sorted(m.regions)), bounds_mm=(lo, hi), summary=summary, mesh_json=mesh_json,
+                     materials=m.materials)

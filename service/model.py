@@ -44,6 +44,17 @@ class Predictor:
             feed["nodes"] = np.asarray(nodes, dtype=np.int64)
         return self.session.run(None, feed)[0]
 
+    def decode_std(self, guides: np.ndarray, nodes: np.ndarray | None, materials: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A material model's (displacement, std), each (batch, k, 3) float32 mm; `materials` (batch, 2, m): theta
+        = ln(E/E_nominal) and the std of ln E per tissue (service/materials.py)."""
+        feed = {"guide": np.asarray(guides, dtype=np.float32).reshape(-1, 2),
+                "materials": np.ascontiguousarray(materials[:, 0], dtype=np.float32),
+                "materials_std": np.ascontiguousarray(materials[:, 1], dtype=np.float32)}
+        if nodes is not None:
+            feed["nodes"] = np.asarray(nodes, dtype=np.int64)
+        u, std = self.session.run(["displacement", "displacement_std"], feed)
+        return u, std
+
     def displacement(self, displacement_mm: float, angle_deg: float, nodes: np.ndarray | None = None) -> np.ndarray:
         """(k, 3) float32 displacement in mm of `nodes` (all nodes when None)."""
         return self.decode(np.array([[displacement_mm, angle_deg]]), nodes)[0]

@@ -3,6 +3,8 @@
 A request becomes a `Query` (which nodes to decode, and how to turn their displacement into the
 answer); full-mesh queries decode together in one onnxruntime call, so the basis is read once per
 batch instead of once per request. Every answer is the same bytes whether batched or not.
+A material model's query carries its materials (theta and sigma, service/materials.py) and its answer the
+std of every returned point and the error budget.
 """
 
 from __future__ import annotations
@@ -14,6 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from contracts.interpolate import interpolate
+from contracts.tet10 import p2_weights
+
+from .materials import budget_parts, error_budget, material_vectors
 
 from .model import Predictor
 from .schemas import PredictRequestBase
@@ -27,6 +32,8 @@ class Prediction:
     positions: np.ndarray  # (k, 3) float32 deformed positions, mm
     displacements: np.ndarray | None  # (k, 3) float32 mm; for markers and for points
     node_ids: np.ndarray | None  # (k,) mesh node ids; for a region
+    std: np.ndarray | None = None  # (k, 3) float32 std of x, y, z in mm; a material model's
+    budget: dict | None = None  # a material model's error budget (materials.error_budget)
 
 
 @dataclass(frozen=True)
@@ -40,25 +47,39 @@ class Query:
     points: np.ndarray | None = None  # (k, 3) float64 reference positions, mm
     corners: np.ndarray | None = None  # (k, 10) index into `nodes` of each point's tet10 nodes
     bary: np.ndarray | None = None  # (k, 4) barycentric coordinates of each point in its tet
+    materials: np.ndarray | None = None  # (2, m) theta and sigma of a material model's query; None: no materials
 
 
 def plan(predictor: Predictor, request: PredictRequestBase) -> Query:
     """What a validated request decodes. Locating points is the costly part (raises OutsideMesh)."""
     guide = (request.displacement_mm, request.angle_deg)
+    info = predictor.manifest.materials
+    materials = material_vectors(info, getattr(request, "materials", None)) if info is not None else None
     if request.points is not None:
         points = np.asarray(request.points, dtype=np.float64)
         unique, corners, bary = predictor.locate(points)
         # points with the same containing nodes (a viewer polling its targets) share a key
         key = "points:" + hashlib.blake2b(unique.tobytes(), digest_size=16).hexdigest()
-        return Query(guide, key, unique, points=points, corners=corners, bary=bary)
+        return Query(guide, key, unique, points=points, corners=corners, bary=bary, materials=materials)
     if request.region is not None:
         region = request.region.value
-        return Query(guide, f"region:{region}", predictor.folder.regions[region], region=region)
-    return Query(guide, ALL_NODES, None)
+        return Query(guide, f"region:{region}", predictor.folder.regions[region], region=region, materials=materials)
+    return Query(guide, ALL_NODES, None, materials=materials)
 
 
-def finish(predictor: Predictor, query: Query, u: np.ndarray) -> Prediction:
-    """The answer from the decoded displacement `u` (n, 3) of the query's nodes; may reuse `u`'s memory."""
+def decode(predictor: Predictor, queries: list[Query], nodes: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(displacement, std or None), each (batch, k, 3) float32, of queries decoding the same `nodes` in one call."""
+    guides = np.array([q.guide for q in queries])
+    if queries[0].materials is None:
+        return predictor.decode(guides, nodes), None
+    return predictor.decode_std(guides, nodes, np.stack([q.materials for q in queries]))
+
+
+def finish(predictor: Predictor, query: Query, u: np.ndarray, std: np.ndarray | None = None) -> Prediction:
+    """The answer from the decoded displacement `u` (n, 3) of the query's nodes (and a material model's std);
+    may reuse `u`'s memory."""
+    if std is not None:
+        return _with_std(predictor, query, finish(predictor, query, u), std)
     if query.points is not None:
         shown = interpolate(u[query.corners], query.bary).astype(np.float32)  # (k, 3)
         return Prediction(None, shown + query.points.astype(np.float32), shown, None)
@@ -68,13 +89,24 @@ def finish(predictor: Predictor, query: Query, u: np.ndarray) -> Prediction:
     return Prediction(None, np.add(u, predictor.nodes32, out=u), None, None)  # in place: no copy
 
 
+def _with_std(predictor: Predictor, query: Query, answer: Prediction, std: np.ndarray) -> Prediction:
+    """The answer with its std (k, 3) and error budget. At a point, sum_j |N_j| std_j over its tet's nodes: an upper
+    bound of the interpolated field's std (triangle inequality), where the shape functions N_j may be negative."""
+    if query.points is not None:
+        std = np.einsum("kn,knc->kc", np.abs(p2_weights(query.bary)), std[query.corners]).astype(np.float32)
+    parts = budget_parts(predictor.manifest)
+    return Prediction(answer.region, answer.positions, answer.displacements, answer.node_ids, std,
+                      error_budget(parts, query.region, std))
+
+
 def predict(predictor: Predictor, request: PredictRequestBase) -> Prediction:
     """Deformed positions for a validated request: all nodes, one region's nodes, or interpolated points.
 
     Raises OutsideMesh (from the predictor) naming the first point that lies in no tet.
     """
     query = plan(predictor, request)
-    return finish(predictor, query, predictor.decode(np.array([query.guide]), query.nodes)[0])
+    u, std = decode(predictor, [query], query.nodes)
+    return finish(predictor, query, u[0], None if std is None else std[0])
 
 
 def predict_batch(predictor: Predictor, queries: list[Query]) -> list[Prediction]:
@@ -86,15 +118,16 @@ def predict_batch(predictor: Predictor, queries: list[Query]) -> list[Prediction
     for members in groups.values():
         first = queries[members[0]]
         if first.nodes is None:  # the full mesh: one pass over the basis for the whole batch
-            u = predictor.decode(np.array([queries[i].guide for i in members]))  # (batch, n, 3)
+            u, std = decode(predictor, [queries[i] for i in members], None)  # (batch, n, 3)
             for row, i in enumerate(members):
-                out[i] = finish(predictor, queries[i], u[row])
+                out[i] = finish(predictor, queries[i], u[row], None if std is None else std[row])
             continue
         # A node subset one guide at a time: its cost is the O(k * rank) gather, not the basis, and
         # onnxruntime's Gemm over a gathered (not prepacked) basis rounds the last bit differently
         # for one row than for several; so the reply is the same bytes as without batching.
         for i in members:
-            out[i] = finish(predictor, queries[i], predictor.decode(np.array([queries[i].guide]), first.nodes)[0])
+            u, std = decode(predictor, [queries[i]], first.nodes)
+            out[i] = finish(predictor, queries[i], u[0], None if std is None else std[0])
     return out
 
 

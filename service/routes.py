@@ -16,7 +16,7 @@ from .info import ModelInfo
 from .limits import IN_FLIGHT
 from .metrics import FORMAT, TARGET, Metrics
 from .model import Predictor
-from .predict import Prediction, finish, plan, predict
+from .predict import Prediction, decode, finish, plan, predict
 from .replies import SMALL_JSON_ROWS, ChunkedResponse, binary_reply, json_chunks, rows_of
 from .schemas import ErrorReply, PredictReply, PredictRequestBase
 
@@ -112,6 +112,8 @@ def reply(request: PredictRequestBase, prediction: Prediction, *, fmt: str, mode
         return binary_reply(prediction.positions)
     scalars = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
                "region": prediction.region, "count": len(prediction.positions)}
+    if prediction.budget is not None:
+        scalars["error_budget"] = prediction.budget
     return ChunkedResponse(json_chunks(scalars, reply_arrays(prediction)))
 
 
@@ -121,6 +123,8 @@ def reply_arrays(prediction: Prediction) -> dict[str, np.ndarray]:
         arrays["displacements"] = prediction.displacements
     if prediction.node_ids is not None:
         arrays["node_ids"] = prediction.node_ids
+    if prediction.std is not None:
+        arrays["std_mm"] = prediction.std
     return arrays
 
 
@@ -139,7 +143,8 @@ async def respond(serving: Serving, body: PredictRequestBase, fmt: str, *, alone
     predictor, batcher, model = serving.predictor, serving.batcher, serving.info.name
     query = plan(predictor, body) if body.points is None else None
     if query is not None and alone and query.key in serving.inline and (batcher is None or batcher.idle):
-        prediction = finish(predictor, query, predictor.decode(np.array([query.guide]), query.nodes)[0])
+        u, std = decode(predictor, [query], query.nodes)
+        prediction = finish(predictor, query, u[0], None if std is None else std[0])
     elif batcher is None:
         return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=model)
     else:
@@ -193,6 +198,9 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
         target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
         state = request.scope.setdefault("state", {})  # for the metrics middleware, which counts the reply
         state[TARGET] = target
+        if export is not None and getattr(body, "materials", None) is not None:
+            raise RequestProblem(422, field="materials", type="format_conflict",
+                                 message="materials: ?format= exports the nominal materials' mesh; leave materials out")
         if export is not None:
             state[FORMAT] = export.value
             region = body.region.value if body.region is not None else None

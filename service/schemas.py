@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
 from .info import ModelInfo
+from .materials import NO_MATERIALS, materials_request_model
 
 
 def _coordinate(lo: float, hi: float, axis: str):
@@ -34,10 +35,16 @@ class PredictRequestBase(BaseModel):
 
 
 def predict_request_model(info: ModelInfo, max_points: int) -> type[PredictRequestBase]:
-    """A pydantic model whose ranges are the model's training envelope, so /docs and errors state them."""
+    """A pydantic model whose ranges are the model's training envelope, so /docs and errors state them; a material
+    model's request also takes `materials` (service/materials.py), with the declared ranges."""
     (d_lo, d_hi), (a_lo, a_hi), (lo, hi) = info.displacement_mm, info.angle_deg, info.bounds_mm
     Point = tuple[_coordinate(lo[0], hi[0], "x"), _coordinate(lo[1], hi[1], "y"), _coordinate(lo[2], hi[2], "z")]
     Region = Enum("Region", {name: name for name in info.regions}, type=str)
+    extra = {}
+    if info.materials is not None:
+        extra["materials"] = (Optional[materials_request_model(info.materials)], Field(
+            None, description="per tissue youngs_kpa or shear_wave_speed_m_s, optional std_percent or std; a tissue "
+                              "left out is nominal with the scene's uncertainty (GET /model: materials)"))
     return create_model(
         "PredictRequest",
         __base__=PredictRequestBase,
@@ -50,6 +57,7 @@ def predict_request_model(info: ModelInfo, max_points: int) -> type[PredictReque
         region=(Region, Field(None, description="decode only this named node set (default: all nodes)")),
         points=(Annotated[list[Point], Field(min_length=1, max_length=max_points)],
                 Field(None, description=f"up to {max_points} [x, y, z] reference positions in mm, inside the mesh")),
+        **extra,
     )
 
 
@@ -63,6 +71,12 @@ class PredictReply(BaseModel):
     displacements: Optional[list[list[float]]] = Field(
         None, description="displacement vectors in mm; given for markers and for points")
     node_ids: Optional[list[int]] = Field(None, description="mesh node ids of the positions, for a region")
+    std_mm: Optional[list[list[float]]] = Field(
+        None, description="a material model's std of x, y and z per position, mm, from the materials' std (first order; "
+                          "at points an upper bound: the nodes' std interpolated with |shape functions|)")
+    error_budget: Optional[dict] = Field(
+        None, description="a material model's error terms in mm (surrogate, FE discretisation, material first order, "
+                          "the largest std, total) and what each is measured against")
 
 
 class FieldError(BaseModel):
@@ -84,4 +98,7 @@ def field_hints(info: ModelInfo, max_points: int) -> dict[str, str]:
         "region": "one of " + ", ".join(info.regions),
         "points": f"1 to {max_points} points, each [x, y, z] in mm inside the mesh, within "
                   f"{[round(v, 2) for v in lo]} to {[round(v, 2) for v in hi]}",
+        "materials": NO_MATERIALS if info.materials is None else (
+            "per tissue youngs_kpa or shear_wave_speed_m_s inside its range, optional std_percent or std: "
+            + "; ".join(f"{m.tissue} {m.youngs_kpa_range[0]:g}..{m.youngs_kpa_range[1]:g} kPa" for m in info.materials.inputs)),
     }
