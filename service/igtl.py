@@ -4,8 +4,14 @@ Off by default; `--igtl true` (env DEFORM_IGTL) serves on `--igtl-port` (18944, 
 
     in   TRANSFORM "NeedleGuide"    the guide's motion from rest: rotation by beta about the tilt normal,
                                     translation d a(beta) (service/guide.py defines the frame)
+         STRING "NeedleGuideMaterials"  a material model's tissue stiffnesses, the JSON of /predict's `materials`
+                                    ({"prostate": {"youngs_kpa": 70, "std_percent": 15}}; {} = nominal): they
+                                    hold for every later pose, of every peer (they describe the patient);
+                                    answered by a STRING status, "materials set" or why they were refused
     out  POINT "DeformedPoints"     marker_1 .. marker_8, then each configured target (`--igtl-targets
                                     '{"lesion": [x, y, z]}'`, reference mm), at their deformed positions
+                                    (a material model: each point's diameter is 2 |std|, its 1-sigma sphere
+                                    from the materials' uncertainty, service/materials.py)
          POLYDATA "ProstateSurface" with `--igtl-surface true`: the deformed prostate surface (triangles)
          STRING "NeedleGuideStatus" instead, when a message is refused: an off-axis pose (more than
                                     0.1 mm across the tilted axis or 0.1 deg about another axis; never
@@ -29,6 +35,7 @@ import threading
 
 import numpy as np
 import pyigtl
+from pydantic import ValidationError
 from pyigtl.messages import CRC64
 
 from contracts.model import ModelFolder
@@ -36,10 +43,12 @@ from contracts.tet10 import p2_weights
 
 from .export import surface_of
 from .guide import Guide, OffAxisPose
+from .materials import NO_MATERIALS, material_vectors, materials_request_model
 from .model import PointLocator, Predictor
 
 log = logging.getLogger(__name__)
 POSE_NAME, POINTS_NAME, SURFACE_NAME, STATUS_NAME = "NeedleGuide", "DeformedPoints", "ProstateSurface", "NeedleGuideStatus"
+MATERIALS_NAME = "NeedleGuideMaterials"
 MAX_BODY_BYTES = 1 << 20  # a TRANSFORM body is 48 bytes; anything near this is not a pose
 ENVELOPE_SLACK = 1e-3  # float32 matrices carry ~7 digits: d = 10 arrives as 10.0000002
 MARKER_RGBA, TARGET_RGBA = (255, 220, 0, 255), (230, 40, 40, 255)
@@ -73,12 +82,42 @@ class Responder:
         self._weights = p2_weights(bary)  # (k, 10)
         self.reference = np.concatenate([folder.nodes[markers], reference]).astype(np.float32)
         self.surface = surface_of(folder, "prostate") if surface else None
+        info = folder.manifest.materials
+        self._materials_model = materials_request_model(info) if info is not None else None
+        self.materials = material_vectors(info, None) if info is not None else None  # (2, m): nominal, scene's std
 
     def positions(self, predictor: Predictor, displacement_mm: float, angle_deg: float) -> np.ndarray:
         """(markers + targets, 3) float32 deformed positions in mm."""
-        u = predictor.displacement(displacement_mm, angle_deg, self.nodes)
+        return self.positions_std(predictor, displacement_mm, angle_deg)[0]
+
+    def positions_std(self, predictor: Predictor, displacement_mm: float,
+                      angle_deg: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """(markers + targets, 3) float32 deformed positions in mm, and a material model's |std| per point (mm; at a
+        target the upper bound through |N|, as /predict's points) or None."""
+        guide = np.array([[displacement_mm, angle_deg]])
+        if self.materials is None:
+            u, std = predictor.decode(guide, self.nodes)[0], None
+        else:
+            u, std = (a[0] for a in predictor.decode_std(guide, self.nodes, self.materials[None]))
         at_targets = np.einsum("kn,knd->kd", self._weights, u[self._targets])
-        return self.reference + np.concatenate([u[self._markers], at_targets]).astype(np.float32)
+        positions = self.reference + np.concatenate([u[self._markers], at_targets]).astype(np.float32)
+        if std is None:
+            return positions, None
+        std_targets = np.einsum("kn,knd->kd", np.abs(self._weights), std[self._targets])
+        return positions, np.linalg.norm(np.concatenate([std[self._markers], std_targets]), axis=1)
+
+    def set_materials(self, text: str) -> str:
+        """Take a NeedleGuideMaterials JSON object for the poses to come; the status line to send back."""
+        if self._materials_model is None:
+            return f"refused {MATERIALS_NAME}: {NO_MATERIALS}"
+        try:
+            given = self._materials_model.model_validate_json(text or "{}")
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(["materials", *map(str, err["loc"])]) if err["loc"] else "materials"
+            return f"refused {MATERIALS_NAME}: {where}: {err['msg']}"
+        self.materials = material_vectors(self.folder.manifest.materials, given)
+        return f"materials set: {given.model_dump_json(exclude_none=True)}"
 
     def guide_state(self, matrix: np.ndarray) -> tuple[float, float]:
         """(d, beta) of a NeedleGuide pose; OffAxisPose if off the family or outside the envelope."""
@@ -90,7 +129,9 @@ class Responder:
         return min(max(d, d0), d1), min(max(beta, b0), b1)
 
     def answer(self, predictor: Predictor, message) -> list:
-        """POINT (+ POLYDATA) for a NeedleGuide pose; a STRING status for anything refused."""
+        """POINT (+ POLYDATA) for a NeedleGuide pose; a STRING status for materials and for anything refused."""
+        if message.message_type == "STRING" and message.device_name == MATERIALS_NAME:
+            return [status(self.set_materials(message.string))]
         if message.message_type != "TRANSFORM" or message.device_name != POSE_NAME:
             return [status(f"ignored {message.message_type} {message.device_name!r}: this server reads "
                            f"TRANSFORM {POSE_NAME!r}")]
@@ -98,12 +139,15 @@ class Responder:
             d, beta = self.guide_state(message.matrix)
         except OffAxisPose as exc:
             return [status(f"refused {POSE_NAME}: {exc}")]
-        positions = self.positions(predictor, d, beta)
+        positions, std = self.positions_std(predictor, d, beta)
         reply = [pyigtl.PointMessage(positions=positions, names=self.names, rgba_colors=self.rgba, groups=self.groups,
+                                     diameters=None if std is None else 2.0 * std,
                                      device_name=POINTS_NAME, timestamp=message.timestamp)]
         if self.surface is not None:
             ids, triangles = self.surface
-            points = self.folder.nodes[ids].astype(np.float32) + predictor.displacement(d, beta, ids)
+            u = (predictor.displacement(d, beta, ids) if self.materials is None else
+                 predictor.decode_std(np.array([[d, beta]]), ids, self.materials[None])[0][0])
+            points = self.folder.nodes[ids].astype(np.float32) + u
             polygons = np.concatenate([np.full((len(triangles), 1), 3), triangles], axis=1).ravel().astype(np.uint32)
             reply.append(pyigtl.PolyDataMessage(points=points, polygons=polygons, device_name=SURFACE_NAME,
                                                 timestamp=message.timestamp))

@@ -133,3 +133,27 @@ def test_the_std_is_the_fe_finite_difference_times_the_materials_std(mat_client,
     reply = _post(mat_client, region="markers", materials={"prostate": {"std_percent": 10.0}, **zero}).json()
     assert expected.max() > 1e-3
     np.testing.assert_allclose(reply["std_mm"], expected, atol=0.02 * expected.max())
+
+
+def test_openigtlink_takes_the_materials_and_sends_the_std_as_each_points_diameter(tiny_material_model, mat_client):
+    """STRING NeedleGuideMaterials sets the stiffnesses for later poses (as /predict's materials); the POINT reply's
+    diameters are 2 |std| of /predict's markers; a bad value is refused by its field and changes nothing."""
+    import pyigtl
+
+    from service.guide import Guide
+    from service.igtl import MATERIALS_NAME, Responder
+    from service.model import Predictor
+
+    folder = read_model_folder(tiny_material_model)
+    responder, predictor = Responder(folder), Predictor(folder)
+    pose = pyigtl.TransformMessage(Guide.of(folder.manifest).pose(4.0, 3.0), device_name="NeedleGuide")
+    materials = {"prostate": {"youngs_kpa": 80.0, "std_percent": 10.0}}
+    said = responder.answer(predictor, pyigtl.StringMessage(__import__("json").dumps(materials), device_name=MATERIALS_NAME))
+    assert said[0].string.startswith("materials set")
+    points = responder.answer(predictor, pose)[0]
+    reply = _post(mat_client, region="markers", materials=materials).json()
+    np.testing.assert_allclose(points.positions, reply["positions"], atol=1e-5)
+    np.testing.assert_allclose(points.diameters, 2 * np.linalg.norm(reply["std_mm"], axis=1), atol=1e-5)
+    refused = responder.answer(predictor, pyigtl.StringMessage('{"prostate": {"youngs_kpa": 200}}', device_name=MATERIALS_NAME))
+    assert "materials.prostate.youngs_kpa" in refused[0].string
+    np.testing.assert_allclose(responder.answer(predictor, pose)[0].positions, points.positions)
