@@ -109,7 +109,10 @@ def reply(request: PredictRequestBase, prediction: Prediction, *, fmt: str, mode
     """A prediction as JSON, or as raw little-endian float32 positions (count x 3); large JSON in pieces
     (service/replies.py): call it off the event loop unless `small_reply` says it is cheap."""
     if fmt == "binary":
-        return binary_reply(prediction.positions)
+        response = binary_reply(prediction.positions)
+        if prediction.budget is not None:  # a material model: the largest 1-sigma length at the returned points
+            response.headers["X-Std-Max-Mm"] = f"{prediction.budget['material_std_mm_max']:.6g}"
+        return response
     scalars = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
                "region": prediction.region, "count": len(prediction.positions)}
     if prediction.budget is not None:

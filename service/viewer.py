@@ -125,6 +125,9 @@ def build_scene(predictor: Predictor) -> Scene:
         "markers": layer(markers),
         "guide": {"tip_mm": guide.tip_mm, "axis": guide.axis, "tilt_normal": guide.tilt_normal,
                   "radius_mm": guide.patch_radius_mm},
+        # a material model's stiffness inputs: one slider each (E in kPa, within the range); null: none
+        "materials": [m.model_dump(include={"tissue", "nominal_youngs_kpa", "youngs_kpa_range", "std_percent"})
+                      for m in manifest.materials.inputs] if manifest.materials is not None else None,
     }, option=orjson.OPT_SERIALIZE_NUMPY))
 
 

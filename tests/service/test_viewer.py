@@ -267,3 +267,44 @@ def test_with_a_region_cover_frames_and_targets_still_match_predict(tiny_model, 
         np.testing.assert_allclose([t["position"] for t in targets], reply["positions"], atol=0.01)
         assert page.evaluate("__viewer.targetsLocal()") == [True, False]
         assert page.evaluate("__viewer.lastRequests") == len(regions) + 1 and problems == []
+
+
+@pytest.fixture(scope="module")
+def material_viewer(tiny_material_model, browser):  # noqa: F811
+    from service.app import create_app
+    from service.settings import Settings
+
+    with serve_in_thread(create_app(Settings(model=tiny_material_model))) as url, \
+            open_viewer(url, browser=browser) as (page, problems):
+        yield page, problems, url
+
+
+@needs_chromium
+def test_a_material_model_gets_one_stiffness_slider_per_tissue_and_shows_its_uncertainty(material_viewer,
+                                                                                        tiny_material_model):
+    """Each slider spans its tissue's declared range from the nominal; moving the prostate's redraws the markers where
+    /predict puts them for that E, with the 1-sigma readout the replies' X-Std-Max-Mm gives."""
+    from fastapi.testclient import TestClient
+
+    from contracts.model import read_model_folder
+    from service.app import create_app
+    from service.settings import Settings
+
+    page, problems, _ = material_viewer
+    inputs = read_model_folder(tiny_material_model).manifest.materials.inputs
+    for m in inputs:
+        lo, hi, value = page.eval_on_selector(f"#E-{m.tissue}", "s => [Number(s.min), Number(s.max), Number(s.value)]")
+        assert (lo, hi) == m.youngs_kpa_range and value == pytest.approx(m.nominal_youngs_kpa)
+    frames = page.evaluate("__viewer.frames")
+    page.fill("#E-prostate", "80")
+    page.wait_for_function("(n) => __viewer.frames > n && !__viewer.busy", arg=frames, timeout=30_000)
+    d, a = page.evaluate("[__viewer.lastFrame.displacement_mm, __viewer.lastFrame.angle_deg]")
+    nominal = {m.tissue: {"youngs_kpa": m.nominal_youngs_kpa} for m in inputs}
+    with TestClient(create_app(Settings(model=tiny_material_model))) as client:
+        reply = predict_json(client, displacement_mm=d, angle_deg=a, region="markers",
+                             materials={**nominal, "prostate": {"youngs_kpa": page.evaluate(
+                                 "Number(document.getElementById('E-prostate').value)")}})
+    np.testing.assert_allclose(np.reshape(page.evaluate("__viewer.markerPositions()"), (-1, 3)), reply["positions"],
+                               atol=1e-4)
+    assert page.evaluate("__viewer.stdMaxMm") >= np.linalg.norm(reply["std_mm"], axis=1).max() - 1e-6
+    assert "1σ up to" in page.inner_text("#uncertainty") and problems == []

@@ -47,12 +47,18 @@ function showError(err) {
   $('error').textContent = String(err);
 }
 
+// A material model's stiffness sliders (E in kPa) go with every request; its replies carry X-Std-Max-Mm,
+// the largest 1-sigma length at the returned points, kept on the array as stdMaxMm.
 async function predict(body) {
+  if (info.materials) {
+    body.materials = Object.fromEntries(info.materials.map((m) => [m.tissue, { youngs_kpa: state.youngs[m.tissue] }]));
+  }
   const reply = await fetch('/predict', { method: 'POST', body: JSON.stringify(body),
     headers: { 'content-type': 'application/json', accept: BINARY } });
   if (!reply.ok) throw new Error(`/predict ${reply.status}: ${await reply.text()}`);
   const positions = new Float32Array(await reply.arrayBuffer());  // little-endian on every WebGL platform
   if (positions.length !== 3 * Number(reply.headers.get('X-Count'))) throw new Error('/predict: short reply');
+  positions.stdMaxMm = Number(reply.headers.get('X-Std-Max-Mm') ?? NaN);
   return positions;
 }
 
@@ -214,6 +220,48 @@ function applyMarkers(replies) {
   }
   markers.instanceMatrix.needsUpdate = true;
   markers.computeBoundingSphere();
+  if (state.halos) applyUncertainty(positions, replies);
+}
+
+// A material model: a translucent 2-sigma halo around each marker (the largest sigma of the frame's replies)
+// and the number in the panel.
+function applyUncertainty(positions, replies) {
+  const sigma = Math.max(...replies.map((r) => r.stdMaxMm).filter((v) => Number.isFinite(v)), 0);
+  const r = Math.max(2 * sigma, 1e-3);
+  for (let i = 0; i < positions.length / 3; i++) {
+    state.halos.setMatrixAt(i, MARKER_MATRIX.makeScale(r, r, r).setPosition(positions[3 * i], positions[3 * i + 1],
+      positions[3 * i + 2]));
+  }
+  state.halos.instanceMatrix.needsUpdate = true;
+  state.halos.computeBoundingSphere();
+  viewer.stdMaxMm = sigma;
+  $('uncertainty').textContent = `uncertainty from the stiffnesses: 1σ up to ${sigma.toFixed(3)} mm (halo: 2σ)`;
+}
+
+// One slider per tissue stiffness of a material model, E in kPa inside its range, starting at the nominal.
+function setupMaterials() {
+  if (!info.materials) return;
+  state.youngs = Object.fromEntries(info.materials.map((m) => [m.tissue, m.nominal_youngs_kpa]));
+  const box = $('materials');
+  for (const m of info.materials) {
+    const id = `E-${m.tissue}`, [lo, hi] = m.youngs_kpa_range;
+    const label = document.createElement('label'), out = document.createElement('output'), slider = document.createElement('input');
+    label.htmlFor = id;
+    out.id = `${id}-value`;
+    label.append(`${m.tissue.replace('_', ' ')} E `, out, ' kPa');
+    Object.assign(slider, { id, type: 'range', min: lo, max: hi, step: 'any', value: m.nominal_youngs_kpa });  // 'any': the nominal exactly
+    out.textContent = m.nominal_youngs_kpa.toFixed(1);
+    slider.addEventListener('input', (event) => {
+      state.youngs[m.tissue] = Math.min(Math.max(Number(slider.value), lo), hi);
+      out.textContent = state.youngs[m.tissue].toFixed(1);
+      request(event.timeStamp || performance.now());
+    });
+    box.append(label, slider);
+  }
+  box.hidden = $('uncertainty').hidden = false;
+  state.halos = new THREE.InstancedMesh(new THREE.SphereGeometry(1, 16, 12), new THREE.MeshPhongMaterial(
+    { color: 0xffdc00, transparent: true, opacity: 0.25, depthWrite: false }), info.markers.reference.length / 3);
+  scene.add(state.halos);
 }
 
 // x = X + sum_i w_i (x_i - X_i) over the target's tet nodes, from the frame's replies
@@ -398,7 +446,8 @@ viewer.buffer = () => [gl.drawingBufferWidth, gl.drawingBufferHeight];
 viewer.cameraPosition = () => camera.position.toArray();
 viewer.cameraDistance = () => camera.position.distanceTo(controls.target);
 viewer.addTarget = (reference) => addTarget(reference).catch(showError);  // for tests: a target at a reference point
-viewer.targetsLocal = () => state.targets.map((t) => t.local);  // each interpolated on the page, or asked by points
+viewer.targetsLocal = () => state.targets.map((t) => t.local);
+viewer.markerPositions = () => Array.from(state.markerPositions);  // for tests: the markers as drawn (mm)  // each interpolated on the page, or asked by points
 
 function setupLegend() {
   const stops = COLOUR_MAP.map((c, i) => `rgb(${c.map((v) => Math.round(255 * v)).join(',')}) ${100 * i / (COLOUR_MAP.length - 1)}%`);
@@ -415,6 +464,7 @@ async function main() {
   buildScene();
   setupSlider('displacement', info.envelope.displacement_mm, 0.05, 'd');
   setupSlider('angle', info.envelope.angle_deg, 0.1, 'a');
+  setupMaterials();
   setupLegend();
   let down = null;
   renderer.domElement.addEventListener('pointerdown', (e) => { down = [e.clientX, e.clientY]; });
