@@ -139,14 +139,18 @@ graded-mesh: $(STAMP) ## meshes graded at the prostate and tip, judged against t
 linear-validity: $(STAMP) ## up to which push the linear model is a deformation
 	$(PY) -m studies linear-validity --scene $(DEFAULT_SCENE) $(if $(wildcard $(RUNS)/manifest.json),--sweep $(RUNS)) --publish
 
-# The committed models/default from scratch: sweep, off-grid cases (from rest), fit, then the
-# stamp of its end-to-end error against the Taylor-Hood study's converged estimate (fe-error-taylor-hood).
-# Each step resumes. Its scene is fem_offline/scenes/default.toml (Taylor-Hood, the tip in contact, 6,810 tets).
+# The committed models/default from scratch: sweep (with du/d ln E of the scene's [materials] tissues), off-grid
+# cases (from rest), fit, fresh FE at the ends of the material ranges and the stamp of the first-order material
+# model's error against them, then the stamp of its end-to-end error against the Taylor-Hood study's converged
+# estimate (fe-error-taylor-hood). Each step resumes. Its scene is fem_offline/scenes/default.toml (Taylor-Hood,
+# the tip in contact, 6,810 tets).
 DEFAULT_SCENE ?= fem_offline/scenes/default.toml
-default-model: $(STAMP) ## rebuild models/default from scratch: sweep, cases, fit, FE-error stamp (resumable)
+default-model: $(STAMP) ## rebuild models/default from scratch: sweep, cases, fit, material and FE-error stamps (resumable)
 	$(PY) -m fem_offline sweep --scene $(DEFAULT_SCENE) --out $(RUNS)
 	$(PY) -m fem_offline cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 8 --seed 0
 	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 120 --offgrid $(RUNS)/offgrid
+	$(PY) -m fem_offline material-cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/materials
+	$(PY) -m training material-check --model models/default --cases $(RUNS)/materials
 	$(MAKE) fe-error-taylor-hood
 
 # Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.

@@ -66,5 +66,9 @@ def test_default_model_was_built_from_the_default_scenes_physics():
 
     built = parse_scene(read_model_folder(DEFAULT).manifest.scene.spec)
     default = load_scene(DEFAULT.parents[1] / "fem_offline" / "scenes" / "default.toml")
-    assert built.content_sha256() == default.content_sha256()
+    # [materials] (issue #34) names the stiffnesses the model takes as inputs, not the physics u is solved for: a
+    # model built before it (no material inputs) still states the scene's physics
+    physics = [s.model_copy(update={"materials": None}).content_sha256() for s in (built, default)]
+    assert physics[0] == physics[1]
+    assert built.materials in (None, default.materials)
     assert default.solver.volumetric == "taylor_hood" and default.effects.guide_contact
