@@ -157,3 +157,10 @@ def test_openigtlink_takes_the_materials_and_sends_the_std_as_each_points_diamet
     refused = responder.answer(predictor, pyigtl.StringMessage('{"prostate": {"youngs_kpa": 200}}', device_name=MATERIALS_NAME))
     assert "materials.prostate.youngs_kpa" in refused[0].string
     np.testing.assert_allclose(responder.answer(predictor, pose)[0].positions, points.positions)
+
+
+def test_an_export_with_materials_is_refused_rather_than_answered_at_the_nominal(mat_client):
+    """?format= exports the nominal materials' mesh (service/export.py): materials with it are a 422, not ignored."""
+    reply = mat_client.post("/predict?format=vtu", json={**GUIDE, "materials": {"prostate": {"youngs_kpa": 70.0}}})
+    assert reply.status_code == 422 and reply.json()["detail"][0]["field"] == "materials"
+    assert mat_client.post("/predict?format=vtu", json=GUIDE).status_code == 200
