@@ -1,0 +1,96 @@
+"""Time a material model's /predict work in process: markers + 100 points and the full mesh, with std (issue #34).
+
+    python -m bench materials [--model models/default] [--rank 64] [--width 120] [--tissues 4] [--repeat 500]
+
+The model's own timing does not depend on its weights, so a material model of --model's mesh (its mesh and
+manifest, a random PCA basis of --rank, a 1 x --width network, --tissues material inputs) is written to
+runs/bench_materials_model; models/default needs no material sweep for it. Each request is timed through
+predict() (plan, locate, decode with std, interpolate) and the JSON reply built (routes.reply, its pieces
+joined), p50 and p99 over --repeat calls on one thread: the service's work without HTTP. The same requests on
+--model itself (no materials) are the baseline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench._report import Report
+from studies import results
+
+OUT = Path("runs/bench_materials_model")
+
+
+def material_model(model: Path, *, rank: int, width: int, tissues: int) -> Path:
+    """A material model of `model`'s mesh with random weights (sizes only matter), in OUT."""
+    from contracts.materials import MaterialInput, MaterialsInfo
+    from contracts.model import read_model_folder, write_model_folder
+    from training.material_graph import build_material_graph
+    from training.pca import Pca
+
+    base = read_model_folder(model)
+    n3, rng = 3 * len(base.nodes), np.random.default_rng(0)
+    pca = Pca(np.zeros(n3), np.linalg.qr(rng.normal(size=(n3, rank)))[0].T, np.ones(rank + 1))
+    layers = [(0.1 * rng.normal(size=(2, width)), 0.1 * rng.normal(size=width)),
+              (0.1 * rng.normal(size=(width, (1 + tissues) * rank)), np.zeros((1 + tissues) * rank))]
+    names = ["prostate", "rectal_wall", "adipose", "bladder"][:tissues]
+    info = MaterialsInfo(inputs=[MaterialInput(tissue=t, nominal_youngs_kpa=10.0, youngs_kpa_range=(8.0, 12.5),
+                                               std_percent=21.0, poisson=0.495, density_kg_m3=1008.0) for t in names])
+    write_model_folder(OUT, onnx_bytes=build_material_graph(layers, pca, tissues).SerializeToString(), mesh=base.mesh,
+                       manifest=base.manifest.model_copy(update={"materials": info, "name": OUT.name}),
+                       report="random weights: for timing only\n")
+    return OUT
+
+
+def timings(model: Path, repeat: int) -> dict[str, tuple[float, float]]:
+    """p50 and p99 (ms) of predict() + the JSON reply for markers, markers + 100 points and the full mesh."""
+    from service.info import model_info
+    from service.model import Predictor, read_model_folder
+    from service.predict import predict
+    from service.routes import reply
+    from service.schemas import predict_request_model
+    from service.settings import Settings
+
+    folder = read_model_folder(model)
+    predictor, request = Predictor(folder), predict_request_model(model_info(folder, Settings(model=model)), 200)
+    prostate = folder.tets[np.flatnonzero(folder.mesh.tissue == folder.manifest.mesh.tissues.index("prostate"))[:100]]
+    points = [*folder.nodes[prostate[:, :4]].mean(axis=1).tolist(), *folder.nodes[folder.regions["markers"]].tolist()]
+    extra = {"materials": {"prostate": {"youngs_kpa": 11.0, "std_percent": 15.0}}} if folder.manifest.materials else {}
+    out = {}
+    for name, body in (("markers", {"region": "markers"}), ("markers + 100 points", {"points": points}),
+                       ("full mesh", {})):
+        req = request(displacement_mm=2.0, angle_deg=1.0, **body, **extra)
+
+        def once():
+            b"".join(reply(req, predict(predictor, req), fmt="json", model=folder.manifest.name).pieces)
+        for _ in range(20):
+            once()
+        ms = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            once()
+            ms.append((time.perf_counter() - t0) * 1e3)
+        out[name] = (float(np.percentile(ms, 50)), float(np.percentile(ms, 99)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int | None:
+    ap = argparse.ArgumentParser(prog="python -m bench materials", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", type=Path, default=Path("models/default"), help="whose mesh (and baseline)")
+    ap.add_argument("--rank", type=int, default=64)
+    ap.add_argument("--width", type=int, default=120)
+    ap.add_argument("--tissues", type=int, default=4, choices=range(1, 5))
+    ap.add_argument("--repeat", type=int, default=500)
+    results.add_publish_flag(ap)
+    args = ap.parse_args(argv)
+    say = Report()
+    made = material_model(args.model, rank=args.rank, width=args.width, tissues=args.tissues)
+    for label, model in (("no materials", args.model), (f"{args.tissues} materials, with std", made)):
+        for name, (p50, p99) in timings(model, args.repeat).items():
+            say(f"{label}: {name}: p50 {p50:.2f} ms, p99 {p99:.2f} ms (predict + JSON reply, in process)")
+    print(f"wrote {results.write('bench_materials', {'lines': say.lines}, publish=args.publish)}")
+    return 0
