@@ -31,10 +31,11 @@ SWEEP = {"displacement_step_mm": 1.0, "displacement_max_mm": 4.0}
 
 def _tiny_sized(name: str):
     """Scene `name` at tiny.toml's mesh sizes, solver and angles, 1..4 mm (SWEEP), linear with the glued guide
-    (each solve: superposition)."""
+    (each solve: superposition), without the material inputs the anatomy variants inherit from default.toml (the
+    build is tested here; tests/training/test_materials.py tests the materials)."""
     tiny = load_scene(SCENES / "tiny.toml")
     return load_scene(SCENES / f"{name}.toml", mesh=tiny.mesh.model_dump(), sweep={**tiny.sweep.model_dump(), **SWEEP},
-                      solver=tiny.solver.model_dump(), effects={"geometric_nonlinearity": False})
+                      solver=tiny.solver.model_dump(), effects={"geometric_nonlinearity": False}, materials=None)
 
 
 @pytest.fixture(scope="module", params=BUILDS)
