@@ -87,7 +87,7 @@ def first_order_errors(cases: list[dict], session, node_sets: dict, regions: tup
             n += 1
     points = ", ".join(f"{c['guide'][0]:g} mm / {c['guide'][1]:g} deg" for c in cases)
     reference = (f"fresh FE solves on the model's mesh at {n} material points (each tissue at both ends of its declared "
-                 f"range, and every tissue at once), at the guide positions {points}: the first-order model u0 + sum_i "
+                 f"range, then all at their lower and all at their upper ends), at the guide positions {points}: the first-order model u0 + sum_i "
                  "S_i ln(E_i/E_i0) from the nominal solve's sensitivities, and the ONNX model, against them")
     return MaterialAccuracy(reference=reference, n_points=n, regions={
         r: MaterialRegionAccuracy(first_order_mm=a, model_mm=b) for r, (a, b) in worst.items()})
