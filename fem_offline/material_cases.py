@@ -2,8 +2,9 @@
 
 At each guide position (d, beta) the nominal scene is solved (u0) with its sensitivities S_i = du/d ln E_i
 (fe.sensitivity), then the scene with the material tissues' E set to each material point is solved afresh.
-The points: every tissue at both ends of its declared range with the others nominal, then all of them at
-their lower ends and all at their upper ends (theta_i = ln(E_i / E_i,nominal)). A fresh solve starts Newton
+The points: every tissue at both ends of its declared range with the others nominal, then two corners where the
+tissues alternate between their ends (upper, lower, upper, ... and the reverse; theta_i = ln(E_i / E_i,nominal)).
+All at their lower or all at their upper ends would change no ratio, and so (nearly) nothing (fe/sensitivity.py). A fresh solve starts Newton
 from the first-order answer u0 + sum_i S_i theta_i at the final guide position and falls back to the path
 from rest; the equilibrium does not depend on the start (cases.py). One file per guide position
 (`material_NNN.npz`): displacement (u0), displacement_mm, angle_deg, sensitivity_<tissue>, tissues, theta
@@ -34,13 +35,15 @@ log = logging.getLogger(__name__)
 
 
 def material_points(scene: Scene) -> tuple[tuple[str, ...], np.ndarray]:
-    """(tissues, theta (p, m)): each tissue at both ends of its range, then all at the lower and all at the upper ends."""
+    """(tissues, theta (p, m)): each tissue at both ends of its range, then the two alternating corners."""
     if not scene.materials:
         raise ValueError("--scene: the scene has no [materials]; there is nothing to check")
     tissues = tuple(scene.materials)
     ends = np.array([[np.log(e / scene.tissues[t].youngs) for e in scene.materials[t].youngs_kpa_range] for t in tissues])
     rows = [np.eye(len(tissues))[i] * ends[i, j] for i in range(len(tissues)) for j in (0, 1)]
-    return tissues, np.array(rows + [ends[:, 0], ends[:, 1]])
+    alternate = np.arange(len(tissues)) % 2  # 0, 1, 0, ...: lower, upper, lower, ...
+    corners = [ends[np.arange(len(tissues)), alternate], ends[np.arange(len(tissues)), 1 - alternate]]
+    return tissues, np.array(rows + corners)
 
 
 def scaled_scene(scene: Scene, tissues: tuple[str, ...], theta: np.ndarray) -> Scene:
