@@ -7,7 +7,7 @@ together, and the network gives (1 + m) x rank coefficients (material_graph.py d
 
 The check (`python -m training material-check --model M --cases DIR`) reads the cases `fem_offline
 material-cases` solved: at a few guide positions, the nominal u0 and S_i, and fresh FE solves at material points
-theta (each tissue at both ends of its range, and all at once). Per region it records the largest error of
+theta (each tissue at both ends of its range, and two corners where they alternate between their ends). Per region it records the largest error of
 the first-order model u0 + sum S_i theta_i against the fresh solve (the material part alone), and of the served
 ONNX model against it (surrogate + first order), into the manifest's materials.accuracy.
 """
@@ -87,7 +87,7 @@ def first_order_errors(cases: list[dict], session, node_sets: dict, regions: tup
             n += 1
     points = ", ".join(f"{c['guide'][0]:g} mm / {c['guide'][1]:g} deg" for c in cases)
     reference = (f"fresh FE solves on the model's mesh at {n} material points (each tissue at both ends of its declared "
-                 f"range, then all at their lower and all at their upper ends), at the guide positions {points}: the first-order model u0 + sum_i "
+                 f"range, then the two corners where the tissues alternate between their ends), at the guide positions {points}: the first-order model u0 + sum_i "
                  "S_i ln(E_i/E_i0) from the nominal solve's sensitivities, and the ONNX model, against them")
     return MaterialAccuracy(reference=reference, n_points=n, regions={
         r: MaterialRegionAccuracy(first_order_mm=a, model_mm=b) for r, (a, b) in worst.items()})

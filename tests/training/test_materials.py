@@ -44,7 +44,7 @@ def test_the_model_reproduces_the_sweeps_sensitivities_at_a_held_out_case(tiny_m
 
 @pytest.fixture(scope="module")
 def material_cases(tiny_material_sweep, tmp_path_factory):
-    """Fresh FE at the ends of two tissues' ranges (and both at once), at 5 mm / 0 deg on the sweep's mesh."""
+    """Fresh FE at the ends of two tissues' ranges (and the two alternating corners), at 5 mm / 0 deg on the sweep's mesh."""
     from contracts.mesh import read_mesh
     from fem_offline.material_cases import solve_material_cases
 
