@@ -62,9 +62,10 @@ def load_scene(path: str | Path, **overrides) -> Scene:
     """Read and validate a TOML scene; relative file paths resolve against the scene's folder.
 
     `extends = "default.toml"` (relative to the file) starts from another scene: the file's own
-    tables are merged over it key by key, so a variant states only what differs.
+    tables are merged over it key by key, so a variant states only what differs. `overrides` (section -> table
+    or value) are merged over the file the same way.
     """
     path = Path(path)
     data = _read_scene_toml(path)
-    data.update(overrides)
+    data = _merged(data, overrides)
     return parse_scene(data, source=str(path))
