@@ -85,7 +85,7 @@ test: $(STAMP) ## install everything and run the whole test suite (what CI runs)
 test-fast: $(STAMP) ## the test suite without the slow nonlinear solves
 	$(PY) -m pytest -q -m "not slow"
 
-# Studies and benchmarks (README, "Commands"). Each prints what it measured; run one at a time.
+# Studies and benchmarks (`python -m studies --list`, `python -m bench --list`). Each prints what it measured; run one at a time.
 RUNS ?= runs/default
 # Mesh levels of the contact study (every size times each; ratio 1.3); the glued one stays at three.
 SCALES ?= 1.69 1.3 1 0.769
@@ -96,7 +96,7 @@ bench-service: $(STAMP) ## service latency and throughput on MODEL (models/defau
 	$(PY) -m bench service --publish
 
 # Accuracy vs time on the end-to-end error (docs/results/tradeoff.*): $(RUNS) must be a sweep on one level of the
-# convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default_graded (the
+# convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default (the
 # default's sweep); the tiny-mesh check builds its two sweeps once.
 # The script runs numpy and torch on one thread (reproducible fits); a shared 2-core machine stays usable.
 CONVERGENCE ?= docs/results/convergence_taylor_hood.json
@@ -116,7 +116,7 @@ convergence: $(STAMP) ## grid-convergence studies of both guide models and their
 # the study on five contact levels (resumable; each case is judged on the three finest levels that solved it), the
 # model against it node by node, then the stamp in models/default (manifest, report.md; the ONNX graph and the mesh
 # stay as they are). 20-58 min for the three coarser levels, 85 min for the fourth, 79-141 min a case for the
-# fifth (README, Grid convergence, "A fourth level" and "A fifth level"); stop and rerun to resume.
+# fifth (docs site, "Grid convergence"); stop and rerun to resume.
 TH_SCALES ?= 1.3 1 0.769 0.5917 0.4552
 TH_CASES ?= 10:0 10:10 5:5
 TH_NAME ?= convergence_taylor_hood
@@ -153,7 +153,7 @@ default-model: $(STAMP) ## rebuild models/default from scratch: sweep, cases, fi
 	$(PY) -m training material-check --model models/default --cases $(RUNS)/materials
 	$(MAKE) fe-error-taylor-hood
 
-# Build the image with podman (../shared/container/README.md), start it, POST /predict, stop it.
+# Build the image with podman (or docker), start it, POST /predict, stop it.
 container-test: ## build the image with podman, POST /predict, stop it
 	bash scripts/container_test.sh $(IMAGE)
 
