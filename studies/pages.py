@@ -79,23 +79,39 @@ def _mm(x) -> str:
 
 
 def accuracy_table(manifest_path: Path = MANIFEST) -> str:
-    """The default model's accuracy per region: surrogate vs its own FE, FE vs the converged estimate, end to end."""
+    """The default model's accuracy per region: surrogate vs its own FE, FE vs the converged estimate, end to end;
+    for a material model also the model against fresh FE over the declared stiffness ranges, and that end to end."""
     m = json.loads(Path(manifest_path).read_text())
     acc = m["accuracy"]["regions"]
-    rows = ["| region | surrogate vs its own FE (mm) | FE vs converged estimate (mm) | end to end (mm) |",
-            "|---|---|---|---|"]
+    materials = (m.get("materials") or {}).get("accuracy")
+    head = ["region", "surrogate vs its own FE (mm)", "FE vs converged estimate (mm)", "end to end, nominal stiffness (mm)"]
+    if materials:
+        head += ["model vs fresh FE over the stiffness ranges (mm)", "end to end over the ranges (mm)"]
+    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for key, label in REGIONS:
         if key in acc:
             r = acc[key]
-            rows.append(f"| {label} | {_mm(r['surrogate_mm'])} | {_mm(r['fe_discretisation_mm'])} | "
-                        f"**{_mm(r['end_to_end_mm'])}** |")
+            cells = [label, _mm(r["surrogate_mm"]), _mm(r["fe_discretisation_mm"]), f"**{_mm(r['end_to_end_mm'])}**"]
+            if materials and key in materials["regions"]:
+                over = max(materials["regions"][key]["model_mm"], r["surrogate_mm"])
+                cells += [_mm(over), f"**{_mm(over + r['fe_discretisation_mm'])}**"]
+            elif materials:
+                cells += ["—", "—"]
+            rows.append("| " + " | ".join(cells) + " |")
     rel = Path(manifest_path).resolve().relative_to(ROOT) if Path(manifest_path).resolve().is_relative_to(ROOT) else manifest_path
     mesh = m["mesh"]
+    ranges = (" These are for the scene's exact stiffnesses; a patient's are uncertain, and one tissue's E x 1.25 moves "
+              "the markers by up to about 0.3 mm (docs site: Sensitivity to the materials), which this model cannot "
+              "take into account.")
+    if materials:
+        ranges = (f" Over the stiffness ranges: the model against fresh FE solves at {materials['n_points']} material points "
+                  "(`python -m training material-check`). Each answer also carries the std its stiffness inputs' "
+                  "uncertainty gives (`std_mm`), which is not in this table.")
     return "\n".join([
         f"Largest error over the region's points and the held-out cases, `{m['name']}` model "
         f"({mesh['n_tets']:,} tets, {mesh['n_nodes']:,} nodes, PCA rank {m['pca']['rank']}, "
         f"{m['network']['depth']}x{m['network']['width']} network). End to end = surrogate + FE: what a user of the "
-        "answer faces, against the converged FE estimate; the inputs' own uncertainty is not included.", "",
+        "answer faces, against the converged FE estimate." + ranges, "",
         *rows, "", f"*Generated from* `{rel}` *(accuracy.regions; the model built {m['created_utc'][:10]} by* `make default-model`*) "
         "by* `python -m studies readme`. *The FE column comes from docs/results/fe_error_default.json:* "
         + _provenance_brief(load("fe_error_default"))])
