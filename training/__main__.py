@@ -56,13 +56,20 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _stamped(stamp, *args):
+    """A stamp's new manifest, or None after printing the one-line error (the CLI then exits 2)."""
+    try:
+        return stamp(*args)
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+
+
 def _material_check(args) -> int:
     from .materials import stamp
 
-    try:
-        manifest = stamp(args.model, args.cases)
-    except (ValueError, FileNotFoundError, KeyError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    manifest = _stamped(stamp, args.model, args.cases)
+    if manifest is None:
         return 2
     for name, r in manifest.materials.accuracy.regions.items():
         print(f"{args.model}: {name}: first order vs fresh FE {r.first_order_mm:.4f} mm, model {r.model_mm:.4f} mm")
@@ -72,10 +79,8 @@ def _material_check(args) -> int:
 def _restamp(args) -> int:
     from .fit import restamp, summary_line
 
-    try:
-        manifest = restamp(args.model, args.fe_error)
-    except (ValueError, FileNotFoundError, KeyError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    manifest = _stamped(restamp, args.model, args.fe_error)
+    if manifest is None:
         return 2
     print(f"{args.model}: {summary_line(manifest)}")
     return 0

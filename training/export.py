@@ -53,6 +53,20 @@ def reference_decode(layers, pca: Pca, guide: np.ndarray) -> np.ndarray:
     return (d * pca.decode(h @ w + b)).reshape(len(h), -1, 3)
 
 
+def network_nodes(layers) -> tuple[list, list]:
+    """The network's initializers and nodes: d = guide[:, :1] (the factor of u = d f), then a Gemm per layer
+    (Tanh between) from `guide` to `coefficients`."""
+    inits, nodes, h = [], [helper.make_node("Slice", ["guide", "zero1", "one1", "one1"], ["d"])], "guide"
+    for i, (w, b) in enumerate(layers):
+        inits += [_init(f"w{i}", w.astype(np.float32)), _init(f"b{i}", b.astype(np.float32))]
+        out = "coefficients" if i == len(layers) - 1 else f"z{i}"
+        nodes.append(helper.make_node("Gemm", [h, f"w{i}", f"b{i}"], [out]))
+        if i < len(layers) - 1:
+            nodes.append(helper.make_node("Tanh", [out], [f"h{i}"]))
+            h = f"h{i}"
+    return inits, nodes
+
+
 def build_graph(layers, pca: Pca, *, dtype=np.float32) -> onnx.ModelProto:
     """The ONNX model; `dtype` is the basis precision (float16 halves its size, computed in float32)."""
     n_comp = pca.basis.shape[1]
@@ -62,16 +76,8 @@ def build_graph(layers, pca: Pca, *, dtype=np.float32) -> onnx.ModelProto:
         # with transB runs as fast
         _init("basis", np.ascontiguousarray(np.vstack([pca.basis, pca.mean]).T).astype(dtype)),
     ]
-    nodes, h = [  # d (batch, 1): the factor of u = d f
-        helper.make_node("Slice", ["guide", "zero1", "one1", "one1"], ["d"]),
-    ], "guide"
-    for i, (w, b) in enumerate(layers):
-        inits += [_init(f"w{i}", w.astype(np.float32)), _init(f"b{i}", b.astype(np.float32))]
-        out = "coefficients" if i == len(layers) - 1 else f"z{i}"
-        nodes.append(helper.make_node("Gemm", [h, f"w{i}", f"b{i}"], [out]))
-        if i < len(layers) - 1:
-            nodes.append(helper.make_node("Tanh", [out], [f"h{i}"]))
-            h = f"h{i}"
+    net_inits, nodes = network_nodes(layers)
+    inits += net_inits
     nodes += [  # [d c, d] (batch, rank + 1), so that u = [d c, d] . [basis; mean]^T
         helper.make_node("Mul", ["coefficients", "d"], ["d_coefficients"]),
         helper.make_node("Concat", ["d_coefficients", "d"], ["weights"], axis=1),

@@ -19,7 +19,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from .export import OPSET, _init
+from .export import OPSET, _init, network_nodes
 from .pca import Pca
 
 
@@ -62,14 +62,8 @@ def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32
     """The material model's ONNX graph (module docstring); `dtype` is the basis precision."""
     m, n_comp, rank = n_materials, pca.basis.shape[1], pca.basis.shape[0]
     inits = [_init("basis", np.ascontiguousarray(np.vstack([pca.basis, pca.mean]).T).astype(dtype))]
-    nodes, h = [helper.make_node("Slice", ["guide", "zero1", "one1", "one1"], ["d"])], "guide"
-    for i, (w, b) in enumerate(layers):
-        inits += [_init(f"w{i}", w.astype(np.float32)), _init(f"b{i}", b.astype(np.float32))]
-        out = "coefficients" if i == len(layers) - 1 else f"z{i}"
-        nodes.append(helper.make_node("Gemm", [h, f"w{i}", f"b{i}"], [out]))
-        if i < len(layers) - 1:
-            nodes.append(helper.make_node("Tanh", [out], [f"h{i}"]))
-            h = f"h{i}"
+    net_inits, nodes = network_nodes(layers)
+    inits += net_inits
     basis = "basis"
     if dtype != np.float32:
         nodes.append(helper.make_node("Cast", ["basis"], ["basis32"], to=TensorProto.FLOAT))
