@@ -64,7 +64,7 @@ def _as_the_sweep_records(displacements_mm, curves, dense, everywhere) -> dict:
 def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
     scene = load_scene(scene_path)
     manifest, mesh = _nonlinear(sweep, scene) if sweep is not None else (None, mesh_for_scene(scene))
-    problem = build_problem(load_scene(scene_path, effects={"geometric_nonlinearity": False}), mesh)
+    problem = build_problem(load_scene(scene_path, effects={"geometric_nonlinearity": False, "guide_contact": False}), mesh)
     grid = scene.sweep
     curves = det_f_curves(problem, grid.displacements_mm, grid.angles_deg)
     dense = det_f_curves(problem, grid.displacements_mm, grid.angles_deg, intorder=intorder)

@@ -35,7 +35,7 @@ def _tiny_sized(name: str):
     build is tested here; tests/training/test_materials.py tests the materials)."""
     tiny = load_scene(SCENES / "tiny.toml")
     return load_scene(SCENES / f"{name}.toml", mesh=tiny.mesh.model_dump(), sweep={**tiny.sweep.model_dump(), **SWEEP},
-                      solver=tiny.solver.model_dump(), effects={"geometric_nonlinearity": False}, materials=None)
+                      solver=tiny.solver.model_dump(), effects={"geometric_nonlinearity": False, "guide_contact": False}, materials=None)
 
 
 @pytest.fixture(scope="module", params=BUILDS)
