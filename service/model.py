@@ -11,6 +11,8 @@ import numpy as np
 from contracts.interpolate import PointLocator, interpolate
 from contracts.model import ModelError, ModelFolder, ModelManifest, onnx_session, read_model_folder
 
+from .materials import budget_parts
+
 log = logging.getLogger(__name__)
 __all__ = ["ModelError", "ModelFolder", "OutsideMesh", "PointLocator", "Predictor", "read_model_folder"]
 
@@ -31,6 +33,8 @@ class Predictor:
         self.session = onnx_session(folder.path / "model.onnx", threads=threads)
         self.locator = PointLocator(folder.nodes, folder.tets)
         self.nodes32 = folder.nodes.astype(np.float32)
+        # the error budget's per-region bounds, from the manifest once (not per request); {} without materials
+        self.budget_parts = budget_parts(folder.manifest)
 
     @property
     def manifest(self) -> ModelManifest:

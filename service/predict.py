@@ -18,7 +18,7 @@ import numpy as np
 from contracts.interpolate import interpolate
 from contracts.tet10 import p2_weights
 
-from .materials import budget_parts, error_budget, material_vectors
+from .materials import error_budget, material_vectors
 
 from .model import Predictor
 from .schemas import PredictRequestBase
@@ -94,9 +94,8 @@ def _with_std(predictor: Predictor, query: Query, answer: Prediction, std: np.nd
     bound of the interpolated field's std (triangle inequality), where the shape functions N_j may be negative."""
     if query.points is not None:
         std = np.einsum("kn,knc->kc", np.abs(p2_weights(query.bary)), std[query.corners]).astype(np.float32)
-    parts = budget_parts(predictor.manifest)
     return Prediction(answer.region, answer.positions, answer.displacements, answer.node_ids, std,
-                      error_budget(parts, query.region, std))
+                      error_budget(predictor.budget_parts, query.region, std))
 
 
 def predict(predictor: Predictor, request: PredictRequestBase) -> Prediction:

@@ -25,24 +25,34 @@ def tiny_sweep(tmp_path_factory) -> Path:
     From 6 mm on its snapshots turn elements inside out (det(I + grad u) <= 0 at the 11 probe points
     per tet; at the solver's 4 from 7 mm; measured), so the model fitted on it (tiny_model) answers
     for 0..5 mm only: the service tests ask inside that."""
-    from fem_offline.scene import load_scene
-    from fem_offline.sweep import run_sweep
-
-    scene = load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False},
-                       sweep={"displacement_step_mm": 1.0, "displacement_max_mm": 10.0, "angle_min_deg": -10.0,
-                              "angle_max_deg": 10.0, "angle_step_deg": 2.0})
-    out = tmp_path_factory.mktemp("sweep")
-    manifest = run_sweep(scene, out)
-    assert manifest.n_done == 110
-    return out
+    return _linear_sweep(tiny_linear_scene(), tmp_path_factory.mktemp("sweep"))
 
 
 @pytest.fixture(scope="session")
 def tiny_model(tiny_sweep, tmp_path_factory) -> Path:
+    return _fitted(tiny_sweep, tmp_path_factory.mktemp("models") / "tiny", rank=8)
+
+
+def tiny_linear_scene(**sections):
+    """tiny.toml (glued) with the small-strain model on a 1 mm x 2 deg grid to 10 mm: superposable, seconds."""
+    from fem_offline.scene import load_scene
+
+    return load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False},
+                      sweep={"displacement_step_mm": 1.0, "displacement_max_mm": 10.0, "angle_min_deg": -10.0,
+                             "angle_max_deg": 10.0, "angle_step_deg": 2.0}, **sections)
+
+
+def _linear_sweep(scene, out: Path) -> Path:
+    from fem_offline.sweep import run_sweep
+
+    assert run_sweep(scene, out).n_done == 110
+    return out
+
+
+def _fitted(sweep: Path, out: Path, *, rank: int) -> Path:
     from training.fit import FitOptions, fit
 
-    out = tmp_path_factory.mktemp("models") / "tiny"
-    fit(tiny_sweep, out, FitOptions(rank=8, max_iterations=300, test_cases=TINY_TEST_CASES), progress=False)
+    fit(sweep, out, FitOptions(rank=rank, max_iterations=300, test_cases=TINY_TEST_CASES), progress=False)
     return out
 
 
@@ -55,30 +65,17 @@ TINY_MATERIALS = {  # every soft tissue's stiffness as an input, around tiny.tom
 
 
 def tiny_material_scene(**materials):
-    """tiny.toml, linear and glued (superposable: seconds), with material inputs (default: TINY_MATERIALS)."""
-    from fem_offline.scene import load_scene
-
-    return load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False, "guide_contact": False},
-                      materials=materials or TINY_MATERIALS,
-                      sweep={"displacement_step_mm": 1.0, "displacement_max_mm": 10.0, "angle_min_deg": -10.0,
-                             "angle_max_deg": 10.0, "angle_step_deg": 2.0})
+    """tiny_linear_scene with material inputs (default: TINY_MATERIALS)."""
+    return tiny_linear_scene(materials=materials or TINY_MATERIALS)
 
 
 @pytest.fixture(scope="session")
 def tiny_material_sweep(tmp_path_factory) -> Path:
     """tiny_sweep's grid, superposed, with S_i = du/d ln E_i of the four soft tissues in every snapshot."""
-    from fem_offline.sweep import run_sweep
-
-    out = tmp_path_factory.mktemp("material_sweep")
-    assert run_sweep(tiny_material_scene(), out).n_done == 110
-    return out
+    return _linear_sweep(tiny_material_scene(), tmp_path_factory.mktemp("material_sweep"))
 
 
 @pytest.fixture(scope="session")
 def tiny_material_model(tiny_material_sweep, tmp_path_factory) -> Path:
     """A material model on tiny_material_sweep (answers for 0..5 mm, like tiny_model)."""
-    from training.fit import FitOptions, fit
-
-    out = tmp_path_factory.mktemp("models") / "tiny_materials"
-    fit(tiny_material_sweep, out, FitOptions(rank=12, max_iterations=300, test_cases=TINY_TEST_CASES), progress=False)
-    return out
+    return _fitted(tiny_material_sweep, tmp_path_factory.mktemp("models") / "tiny_materials", rank=12)

@@ -5,6 +5,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from .helpers import served
+
 DEFAULT = Path(__file__).resolve().parents[2] / "models" / "default"
 
 
@@ -40,10 +42,7 @@ def tiny_predictor(tiny_folder):
 
 @pytest.fixture(scope="session")
 def tiny_client(tiny_model):
-    from service.app import create_app
-    from service.settings import Settings
-
-    with TestClient(create_app(Settings(model=tiny_model))) as client:
+    with served(tiny_model) as client:
         yield client
 
 

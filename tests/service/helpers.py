@@ -1,6 +1,19 @@
-"""Small helpers the viewer, export and OpenIGTLink tests share."""
+"""Small helpers the service tests share."""
+
+from contextlib import contextmanager
 
 import numpy as np
+from fastapi.testclient import TestClient
+
+
+@contextmanager
+def served(model, **settings):
+    """A TestClient of the app serving `model` (lifespan run), with other settings as given."""
+    from service.app import create_app
+    from service.settings import Settings
+
+    with TestClient(create_app(Settings(model=model, **settings))) as client:
+        yield client
 
 
 def predict_json(client, **body) -> dict:

@@ -6,20 +6,18 @@ import math
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from contracts.model import onnx_session, read_model_folder
 from tests.conftest import TINY_MATERIALS, tiny_material_scene
+
+from .helpers import served
 
 GUIDE = {"displacement_mm": 4.0, "angle_deg": 3.0}
 
 
 @pytest.fixture(scope="module")
 def mat_client(tiny_material_model):
-    from service.app import create_app
-    from service.settings import Settings
-
-    with TestClient(create_app(Settings(model=tiny_material_model))) as client:
+    with served(tiny_material_model) as client:
         yield client
 
 
