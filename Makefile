@@ -145,11 +145,12 @@ linear-validity: $(STAMP) ## up to which push the linear model is a deformation
 # estimate (fe-error-taylor-hood). Each step resumes. Its scene is fem_offline/scenes/default.toml (Taylor-Hood,
 # the tip in contact, 6,810 tets).
 DEFAULT_SCENE ?= fem_offline/scenes/default.toml
+MATERIAL_CASES ?= --case 10/0 --case 10/10 --case 7.5/0
 default-model: $(STAMP) ## rebuild models/default from scratch: sweep, cases, fit, material and FE-error stamps (resumable)
 	$(PY) -m fem_offline sweep --scene $(DEFAULT_SCENE) --out $(RUNS)
 	$(PY) -m fem_offline cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/offgrid --n 8 --seed 0
-	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --width 120 --offgrid $(RUNS)/offgrid
-	$(PY) -m fem_offline material-cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --out $(RUNS)/materials
+	$(PY) -m training fit --snapshots $(RUNS) --out models/default --rank 64 --sensitivity-rank 32 --width 120 --offgrid $(RUNS)/offgrid
+	$(PY) -m fem_offline material-cases --scene $(DEFAULT_SCENE) --mesh $(RUNS)/mesh.npz --sweep $(RUNS) --out $(RUNS)/materials $(MATERIAL_CASES)
 	$(PY) -m training material-check --model models/default --cases $(RUNS)/materials
 	$(MAKE) fe-error-taylor-hood
 

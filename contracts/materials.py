@@ -70,8 +70,9 @@ class MaterialAccuracy(_Frozen):
     """The first-order material model checked against fresh FE solves at held-out material points."""
 
     reference: str
-    n_points: int
+    n_points: int  # the points solved and compared
     regions: dict[str, MaterialRegionAccuracy]
+    unsolved: list[str] = []  # the points where the FE found no equilibrium (guide position, theta, why): not compared
 
 
 class MaterialsInfo(_Frozen):

@@ -49,6 +49,7 @@ class FitOptions(_Frozen):
     """How `training fit` was asked to fit (the CLI's flags)."""
 
     rank: int = 16
+    sensitivity_rank: int = 32  # a material model's extra modes for the sensitivities (training/pca.py)
     width: int = 60
     depth: int = 1
     max_iterations: int = 1000
@@ -128,6 +129,7 @@ class PcaInfo(_Frozen):
     energy: float
     energy_by_rank: list[float]
     method: str
+    n_primary: int | None = None  # a material model: the first n_primary modes are u's own (training/pca.py)
 
 
 class NetworkInfo(_Frozen):

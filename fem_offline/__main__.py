@@ -51,6 +51,8 @@ def _parser() -> argparse.ArgumentParser:
     k.add_argument("--case", action="append", help="guide position D/A in mm/deg (repeatable; default: the largest "
                    "push at 0 deg and at the largest angle)")
     k.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes (default 2)")
+    k.add_argument("--sweep", type=Path, help="the scene's material sweep on the same mesh: its snapshots give the nominal "
+                   "state and sensitivities at each --case (a grid point), instead of solving them again")
 
     m = sub.add_parser("mesh", help="mesh the scene and write it (.npz, .vtu, .msh or .xdmf)")
     m.add_argument("--scene", required=True, type=Path)
@@ -146,7 +148,8 @@ def _material_cases(args) -> int:
         positions = [tuple(float(v) for v in c.split("/")) for c in args.case] if args.case else default_positions(scene)
     except ValueError:
         raise ValueError(f"--case: expected DISPLACEMENT_MM/ANGLE_DEG like 10/0, got {args.case}") from None
-    files = solve_material_cases(scene, load_or_build_mesh(scene, args.mesh), args.out, positions, workers=args.workers)
+    files = solve_material_cases(scene, load_or_build_mesh(scene, args.mesh), args.out, positions, workers=args.workers,
+                                 sweep=args.sweep)
     print(f"{args.out}: {len(files)} guide positions, each at {2 * len(scene.materials or {}) + 2} material points")
     return 0
 

@@ -4,9 +4,13 @@ At each guide position (d, beta) the nominal scene is solved (u0) with its sensi
 (fe.sensitivity), then the scene with the material tissues' E set to each material point is solved afresh.
 The points: every tissue at both ends of its declared range with the others nominal, then two corners where the
 tissues alternate between their ends (upper, lower, upper, ... and the reverse; theta_i = ln(E_i / E_i,nominal)).
-All at their lower or all at their upper ends would change no ratio, and so (nearly) nothing (fe/sensitivity.py). A fresh solve starts Newton
-from the first-order answer u0 + sum_i S_i theta_i at the final guide position and falls back to the path
-from rest; the equilibrium does not depend on the start (cases.py). One file per guide position
+All at their lower or all at their upper ends would change no ratio, and so (nearly) nothing (fe/sensitivity.py). A fresh solve is a
+continuation in the materials at the final guide position: Newton from the nominal equilibrium plus the
+first-order change u0 + sum_i S_i theta_i (with the nominal contact multipliers), else in 2 or 4 steps of theta,
+else the path from rest; the equilibrium does not depend on the start (cases.py). A point where none converges is
+kept as a finding (NaN, its message in `failures`) and the check counts it. With --sweep, the S_i are the
+material sweep's own snapshot at that position (the fields the model was fitted on) and u0 that snapshot solved
+again as the fresh states are, instead of solving both from rest. One file per guide position
 (`material_NNN.npz`): displacement (u0), displacement_mm, angle_deg, sensitivity_<tissue>, tissues, theta
 (p, m) and fresh (p, n_nodes, 3); `training material-check` reads them (training/materials.py). Resumable:
 a finished file is kept.
@@ -23,8 +27,7 @@ from contracts.files import atomic_savez
 from contracts.materials import sensitivity_key
 from contracts.mesh import TetMesh
 
-from fem_offline.cases import solve_from
-from fem_offline.fe.continuation import solve_path
+from fem_offline.fe.continuation import PathState, solve_path
 from fem_offline.fe.newton import ConvergenceError
 from fem_offline.fe.problem import build_problem
 from fem_offline.fe.sensitivity import sensitivities, stiffened
@@ -55,32 +58,92 @@ def scaled_scene(scene: Scene, tissues: tuple[str, ...], theta: np.ndarray) -> S
     return scene.model_copy(update={"tissues": changed})
 
 
-def _fresh(scene: Scene, mesh: TetMesh, start: np.ndarray, d_mm: float, angle_deg: float) -> np.ndarray:
-    """Equilibrium (n_nodes, 3) of `scene` at (d, beta): Newton from `start`, else load-stepped from rest."""
-    problem = build_problem(scene, mesh)
-    if not problem.superposable:
+def _at(scene: Scene, mesh: TetMesh, d_mm: float, angle_deg: float, start: np.ndarray, multipliers):
+    """(u (n_nodes, 3), contact multipliers) of `scene` at (d, beta): Newton from `start` with `multipliers`, no
+    halving. Raises ConvergenceError."""
+    problem = build_problem(scene, mesh).with_solver(max_halvings=0)
+    (_, u, _, state), = list(solve_path(problem, [d_mm], angle_deg, with_state=True,
+                                        state=PathState(np.ravel(start).copy(), d_mm, multipliers=multipliers)))
+    return u, state.multipliers
+
+
+CONTINUATION_STEPS = (1, 2, 4)
+
+
+def _fresh(scene: Scene, mesh: TetMesh, tissues: tuple[str, ...], theta: np.ndarray, nominal, sens: dict[str, np.ndarray],
+           d_mm: float, angle_deg: float) -> np.ndarray:
+    """Equilibrium (n_nodes, 3) of the scene with E_i scaled by exp(theta_i) at (d, beta), from the nominal
+    equilibrium `nominal` = (u0, contact multipliers) at the same guide position.
+
+    A continuation in the materials at the final guide position, in 1, 2, then 4 steps: each step starts Newton
+    from the last equilibrium plus the first-order change S . (theta / k), with its contact multipliers. Else
+    load-stepped from rest. Raises ConvergenceError when none converges."""
+    shift = sum(sens[n] * v for n, v in zip(tissues, theta))
+    for k in CONTINUATION_STEPS:
+        u, multipliers = nominal
         try:
-            return solve_from(problem, start.ravel(), d_mm, angle_deg)[0]
+            for j in range(1, k + 1):
+                u, multipliers = _at(scaled_scene(scene, tissues, theta * j / k), mesh, d_mm, angle_deg, u + shift / k,
+                                     multipliers)
+            return u
         except ConvergenceError as exc:
-            log.warning("%g mm, %g deg: the first-order start did not converge (%s); solving from rest", d_mm, angle_deg, exc)
-    return solve_case(problem, d_mm, angle_deg)[0]
+            log.warning("%g mm, %g deg, theta %s: not in %d step(s) from the nominal state (%s)",
+                        d_mm, angle_deg, np.round(theta, 3), k, exc)
+    return solve_case(build_problem(scaled_scene(scene, tissues, theta), mesh), d_mm, angle_deg)[0]
 
 
-def solve_material_case(scene: Scene, mesh: TetMesh, d_mm: float, angle_deg: float, out: Path) -> Path:
-    """Solve one guide position's nominal state, sensitivities and fresh material points; write `out` (.npz)."""
+def nominal_from_sweep(sweep: Path, tissues: tuple[str, ...], d_mm: float, angle_deg: float):
+    """(u0 (n_nodes, 3), {tissue: S_i}) of a material sweep's snapshot at exactly (d, beta)."""
+    from contracts.sweep import read_manifest, snapshot_file
+
+    try:
+        grid = read_manifest(sweep).grid
+    except (FileNotFoundError, ValueError) as exc:
+        raise ValueError(f"--sweep: {exc}") from None
+    hit = [(i, j) for i, a in enumerate(grid.angles_deg) for j, d in enumerate(grid.displacements_mm)
+           if abs(a - angle_deg) < 1e-9 and abs(d - d_mm) < 1e-9]
+    if not hit:
+        raise ValueError(f"--case {d_mm:g}/{angle_deg:g}: not a snapshot of the sweep {sweep}")
+    with np.load(Path(sweep) / snapshot_file(*hit[0])) as z:
+        missing = [t for t in tissues if sensitivity_key(t) not in z.files]
+        if missing:
+            raise ValueError(f"--sweep: {sweep} holds no sensitivities of {missing}: not a sweep of this scene's [materials]")
+        return z["displacement"], {t: z[sensitivity_key(t)] for t in tissues}
+
+
+def solve_material_case(scene: Scene, mesh: TetMesh, d_mm: float, angle_deg: float, out: Path,
+                        sweep: Path | None = None) -> Path:
+    """Solve one guide position's nominal state, sensitivities and fresh material points; write `out` (.npz).
+    With `sweep` (a material sweep of the scene on `mesh`), the nominal state and S_i are its snapshot's."""
     if out.exists():
         return out
     tissues, theta = material_points(scene)
     problem = build_problem(scene, mesh)
-    (d, u0, _, state), = list(solve_path(problem, [d_mm], angle_deg, with_state=True))
-    sens = sensitivities(stiffened(problem, tissues), problem.at_guide(d, angle_deg, state.multipliers), state.u)
-    fresh = []
+    if sweep is not None and not problem.superposable:
+        snapshot, sens = nominal_from_sweep(sweep, tissues, d_mm, angle_deg)
+        # u0 solved again from the snapshot as the fresh states are (no contact multipliers to start with), so
+        # the first-order error holds no difference of contact tolerance between the sweep's path and these solves
+        nominal = _at(scene, mesh, d_mm, angle_deg, snapshot, None)
+    elif sweep is not None:
+        u0, sens = nominal_from_sweep(sweep, tissues, d_mm, angle_deg)
+        nominal = (u0, None)
+    else:
+        (d, u0, _, state), = list(solve_path(problem, [d_mm], angle_deg, with_state=True))
+        sens = sensitivities(stiffened(problem, tissues), problem.at_guide(d, angle_deg, state.multipliers), state.u)
+        nominal = (u0, state.multipliers)
+    fresh, failures = [], []
     for t in theta:
-        start = u0 + sum(sens[n] * v for n, v in zip(tissues, t))
-        fresh.append(_fresh(scaled_scene(scene, tissues, t), mesh, start, d_mm, angle_deg))
-        log.info("%g mm, %g deg, theta %s: solved", d_mm, angle_deg, np.round(t, 3))
-    atomic_savez(out, displacement=u0, displacement_mm=d_mm, angle_deg=angle_deg, tissues=np.array(tissues),
-                 theta=theta, fresh=np.stack(fresh), **{sensitivity_key(n): s for n, s in sens.items()})
+        try:
+            fresh.append(_fresh(scene, mesh, tissues, t, nominal, sens, d_mm, angle_deg))
+            failures.append("")
+            log.info("%g mm, %g deg, theta %s: solved", d_mm, angle_deg, np.round(t, 3))
+        except ConvergenceError as exc:  # kept as a finding: the check counts it and says which point
+            fresh.append(np.full_like(nominal[0], np.nan))
+            failures.append(str(exc))
+            log.warning("%g mm, %g deg, theta %s: no equilibrium found (%s)", d_mm, angle_deg, np.round(t, 3), exc)
+    atomic_savez(out, displacement=nominal[0], displacement_mm=d_mm, angle_deg=angle_deg, tissues=np.array(tissues),
+                 theta=theta, fresh=np.stack(fresh), failures=np.array(failures),
+                 **{sensitivity_key(n): s for n, s in sens.items()})
     return out
 
 
@@ -92,12 +155,17 @@ def default_positions(scene: Scene) -> list[tuple[float, float]]:
 
 
 def solve_material_cases(scene: Scene, mesh: TetMesh, out: Path, positions: list[tuple[float, float]], *,
-                         workers: int = 2) -> list[Path]:
+                         workers: int = 2, sweep: Path | None = None) -> list[Path]:
     """Every guide position's material case on a process pool (one position per worker); the files, in order."""
     from fem_offline.sweep import single_threaded_pool
 
+    if sweep is not None:  # every position a snapshot with the sensitivities, before any solve
+        for d, a in positions:
+            u0, _ = nominal_from_sweep(sweep, material_points(scene)[0], d, a)
+            if u0.shape != mesh.nodes.shape:
+                raise ValueError(f"--sweep: {sweep} is on a mesh of {len(u0)} nodes, --mesh has {len(mesh.nodes)}")
     out.mkdir(parents=True, exist_ok=True)
     files = [out / f"material_{i:03d}.npz" for i in range(len(positions))]
     with single_threaded_pool(min(workers, len(positions))) as pool:
-        jobs = [pool.submit(solve_material_case, scene, mesh, d, a, f) for (d, a), f in zip(positions, files)]
+        jobs = [pool.submit(solve_material_case, scene, mesh, d, a, f, sweep) for (d, a), f in zip(positions, files)]
         return [j.result() for j in jobs]

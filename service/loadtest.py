@@ -101,12 +101,12 @@ def batch_counts(url: str) -> tuple[float, float]:
     return values.get("predict_batch_size_count", 0.0), values.get("predict_batch_size_sum", 0.0)
 
 
-def _bodies(envelope: dict, region: str | None, n: int, seed: int) -> list[bytes]:
+def _bodies(envelope: dict, region: str | None, n: int, seed: int, extra: dict | None = None) -> list[bytes]:
     rng = np.random.default_rng(seed)
     (d0, d1), (a0, a1) = envelope["displacement_mm"], envelope["angle_deg"]
     out = []
     for d, a in zip(rng.uniform(d0, d1, n), rng.uniform(a0, a1, n)):
-        body = {"displacement_mm": round(float(d), 4), "angle_deg": round(float(a), 4)}
+        body = {"displacement_mm": round(float(d), 4), "angle_deg": round(float(a), 4), **(extra or {})}
         if region:
             body["region"] = region
         out.append(json.dumps(body).encode())
@@ -134,8 +134,10 @@ def read_reply(reply: http.client.HTTPResponse, buffer: bytearray) -> int:
 
 
 def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requests: int | None = None,
-        fmt: str = "json", region: str | None = None, warmup: int = 20, seed: int = 0) -> Result:
-    """Drive the service; latency is from sending the request to having the whole reply body."""
+        fmt: str = "json", region: str | None = None, warmup: int = 20, seed: int = 0,
+        extra: dict | None = None) -> Result:
+    """Drive the service; latency is from sending the request to having the whole reply body. `extra`: more
+    fields for every request body (points, materials)."""
     host, port = loopback(url)
     probe = http.client.HTTPConnection(host, port, timeout=10)
     probe.request("GET", "/model")
@@ -150,7 +152,7 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
 
     def client(i: int) -> None:
         conn = http.client.HTTPConnection(host, port, timeout=30)
-        bodies = _bodies(envelope, region, 512, seed + i)
+        bodies = _bodies(envelope, region, 512, seed + i, extra)
         buffer = bytearray()
         for k in range(warmup):
             conn.request("POST", "/predict", body=bodies[k % 512], headers=headers)

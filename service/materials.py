@@ -35,7 +35,12 @@ STD_SIGMAS = 2.0  # total_mm counts the material uncertainty at 2 std
 class TissueValueBase(BaseModel):
     """One tissue's stiffness in a request: E or a shear-wave speed, with an optional uncertainty."""
 
-    model_config = ConfigDict(extra="forbid")
+    # the rules of _one_each, in the schema too (as region and points in schemas.py)
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"allOf": [
+        {"not": {"required": ["youngs_kpa", "shear_wave_speed_m_s"]}},
+        {"not": {"required": ["std_percent", "std"]}},
+        {"if": {"required": ["std"]}, "then": {"anyOf": [{"required": ["youngs_kpa"]},
+                                                         {"required": ["shear_wave_speed_m_s"]}]}}]})
 
     youngs_kpa: Optional[float] = None
     shear_wave_speed_m_s: Optional[float] = None

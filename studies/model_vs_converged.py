@@ -64,6 +64,9 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
             "markers_fine_mm": np.linalg.norm(u1[regions["markers"]], axis=1).round(4).tolist()}
     out["max_over_cases"] = {k: max(c["regions"][k]["end_to_end_max_mm"] for c in out["cases"].values())
                              for k in regions}
+    # the measured model's own surrogate error: the mesh's FE is within max_over_cases + this of the converged
+    # estimate, for any later model on the mesh (training.fit.fe_through_model)
+    out["model_surrogate_mm"] = {k: r.surrogate_mm for k, r in manifest.accuracy.regions.items()}
     return out
 
 

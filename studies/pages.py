@@ -103,13 +103,19 @@ def accuracy_table(manifest_path: Path = MANIFEST) -> str:
     ranges = (" These are for the scene's exact stiffnesses; a patient's are uncertain, and one tissue's E x 1.25 moves "
               "the markers by up to about 0.3 mm (docs site: Sensitivity to the materials), which this model cannot "
               "take into account.")
+    rank = f"PCA rank {m['pca']['rank']}"
     if materials:
+        unsolved = materials.get("unsolved") or []
+        left = (f"; at {len(unsolved)} more the FE found no equilibrium, so they are not compared (docs site: Materials "
+                "as inputs)" if unsolved else "")
         ranges = (f" Over the stiffness ranges: the model against fresh FE solves at {materials['n_points']} material points "
-                  "(`python -m training material-check`). Each answer also carries the std its stiffness inputs' "
+                  f"(`python -m training material-check`{left}). Each answer also carries the std its stiffness inputs' "
                   "uncertainty gives (`std_mm`), which is not in this table.")
+        if m["pca"].get("n_primary"):
+            rank += f": {m['pca']['n_primary']} for u, {m['pca']['rank'] - m['pca']['n_primary']} for the sensitivities"
     return "\n".join([
         f"Largest error over the region's points and the held-out cases, `{m['name']}` model "
-        f"({mesh['n_tets']:,} tets, {mesh['n_nodes']:,} nodes, PCA rank {m['pca']['rank']}, "
+        f"({mesh['n_tets']:,} tets, {mesh['n_nodes']:,} nodes, {rank}, "
         f"{m['network']['depth']}x{m['network']['width']} network). End to end = surrogate + FE: what a user of the "
         "answer faces, against the converged FE estimate." + ranges, "",
         *rows, "", f"*Generated from* `{rel}` *(accuracy.regions; the model built {m['created_utc'][:10]} by* `make default-model`*) "
@@ -248,8 +254,31 @@ def result_block(name: str, folder: Path = DOCS_RESULTS) -> str:
     return "\n".join([stale, body, "", provenance_line(result), f"[{name}.json](results/{name}.json)", ""])
 
 
+def material_check_table(manifest_path: Path = MANIFEST) -> str:
+    """The default model's material check (manifest materials.accuracy): per region the first-order FE model and
+    the served model against fresh FE at held-out material points, and the points where the FE found no
+    equilibrium."""
+    m = json.loads(Path(manifest_path).read_text())
+    acc = (m.get("materials") or {}).get("accuracy")
+    if not acc:
+        return f"*`{m['name']}` has not been checked against fresh FE at held-out material points.*"
+    rows = ["| region | first order (FE u0 + Σ S_i θ_i) vs fresh FE (mm) | served model vs fresh FE (mm) |",
+            "|---|---|---|"]
+    for key, label in REGIONS:
+        if key in acc["regions"]:
+            r = acc["regions"][key]
+            rows.append(f"| {label} | {_mm(r['first_order_mm'])} | **{_mm(r['model_mm'])}** |")
+    out = [f"Largest error over {acc['n_points']} material points: {acc['reference']}.", "", *rows]
+    if acc.get("unsolved"):
+        out += ["", "Where the FE found no equilibrium (not compared):", "",
+                *[f"- {u}" for u in acc["unsolved"]]]
+    return "\n".join(out + ["", f"*Generated from* `models/{m['name']}/manifest.json` (materials.accuracy)."])
+
+
 def render_page(text: str, folder: Path = DOCS_RESULTS) -> str:
-    """A page with each `{{ result NAME }}` replaced by that result's block, and `{{ accuracy }}`, `{{ speed }}`."""
+    """A page with each `{{ result NAME }}` replaced by that result's block, and `{{ accuracy }}`, `{{ speed }}`,
+    `{{ material_check }}`."""
     text = re.sub(r"\{\{\s*result\s+\"?(\w+)\"?\s*\}\}", lambda m: result_block(m.group(1), folder), text)
     text = re.sub(r"\{\{\s*accuracy\s*\}\}", lambda m: accuracy_table(), text)
+    text = re.sub(r"\{\{\s*material_check\s*\}\}", lambda m: material_check_table(), text)
     return re.sub(r"\{\{\s*speed\s*\}\}", lambda m: speed_table(folder), text)

@@ -39,6 +39,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh (docs/results/convergence_taylor_hood.json): "
                    "the FE discretisation error, added to the surrogate's for the end-to-end bound")
     f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="PCA modes (default 16, the paper's)")
+    f.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=1), default=32,
+                   help="a material sweep's extra modes for the sensitivities, beyond --rank's for u (default 32)")
     f.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units per layer (default 60)")
     f.add_argument("--depth", type=number("--depth", int, minimum=1), default=1, help="hidden layers (default 1)")
     f.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000, help="L-BFGS iterations (default 1000)")
@@ -71,8 +73,12 @@ def _material_check(args) -> int:
     manifest = _stamped(stamp, args.model, args.cases)
     if manifest is None:
         return 2
-    for name, r in manifest.materials.accuracy.regions.items():
-        print(f"{args.model}: {name}: first order vs fresh FE {r.first_order_mm:.4f} mm, model {r.model_mm:.4f} mm")
+    acc = manifest.materials.accuracy
+    for name, r in acc.regions.items():
+        print(f"{args.model}: {name}: first order vs fresh FE {r.first_order_mm:.4f} mm, model {r.model_mm:.4f} mm "
+              f"({acc.n_points} material points)")
+    for point in acc.unsolved:
+        print(f"{args.model}: not compared, the FE found no equilibrium at {point}")
     return 0
 
 
@@ -95,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         return _material_check(args)
     from .fit import PAPER_TEST_CASES, FitOptions, fit, summary_line
 
-    options = FitOptions(rank=args.rank, width=args.width, depth=args.depth, max_iterations=args.iterations,
+    options = FitOptions(rank=args.rank, sensitivity_rank=args.sensitivity_rank, width=args.width, depth=args.depth, max_iterations=args.iterations,
                          seed=args.seed, test_cases=tuple(args.test_case or PAPER_TEST_CASES))
     try:
         manifest = fit(args.snapshots, args.out, options, offgrid=args.offgrid, fe_error=args.fe_error)

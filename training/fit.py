@@ -26,9 +26,9 @@ from contracts.model import PAPER_TEST_CASES, FitOptions, onnx_session
 
 from .export import build_graph, folded_layers, reference_decode
 from .material_graph import build_material_graph, reference_decode_materials
-from .materials import materials_info, sensitivity_rows
+from .materials import materials_info, sensitivity_rows, theta_rms
 from .metrics import ANGLE_FLOOR_MM, case_errors, summarise
-from .pca import Pca, fit_pca
+from .pca import Pca, fit_pca, fit_pca_with_extra
 from .snapshots import Snapshots, read_offgrid, read_sweep, valid_part
 from .tradeoff import gci_bands
 
@@ -83,21 +83,31 @@ class Surrogate:
 
 
 def fit_surrogate(inputs: np.ndarray, rows: np.ndarray, options: FitOptions, *, sensitivity: list[np.ndarray] = (),
-                  progress=None) -> Surrogate:
+                  sensitivity_weights: np.ndarray | None = None, progress=None) -> Surrogate:
     """PCA of the rows (n, 3 n_nodes) to options.rank modes, then the network from inputs (n, 2) to the coefficients.
 
-    With `sensitivity` (per material tissue S_i / d rows like `rows`), one basis is fitted on all the rows stacked,
-    and the network gives the coefficients of u / d and of each S_i / d side by side ((1 + m) x rank outputs)."""
+    With `sensitivity` (per material tissue S_i / d rows like `rows`), one basis holds u / d's own options.rank modes
+    and options.sensitivity_rank more for what they leave of the S_i / d rows (pca.fit_pca_with_extra), and the
+    network gives the coefficients of u / d and of each S_i / d side by side ((1 + m) x basis rank outputs).
+    `sensitivity_weights` (per tissue, default 1) scale each S_i's part of the loss: materials.theta_rms makes it
+    the mean squared error of u + sum_i theta_i S_i over the declared ranges, not of S_i per unit of theta."""
     from .network import train
 
     t0 = time.perf_counter()
-    pca = fit_pca(np.vstack([rows, *sensitivity]) if len(sensitivity) else rows, options.rank)
+    pca = (fit_pca_with_extra(rows, np.vstack(sensitivity), options.rank, options.sensitivity_rank)
+           if len(sensitivity) else fit_pca(rows, options.rank))
     pca_seconds = time.perf_counter() - t0
     log.info("PCA rank %d captures %.8f of the variance (%.1f s)", pca.rank, pca.energy, pca_seconds)
+    weights = np.ones(pca.rank * (1 + len(sensitivity)))  # per output column
+    if len(sensitivity) and sensitivity_weights is not None:
+        weights[pca.rank:] = np.repeat(np.asarray(sensitivity_weights, dtype=np.float64), pca.rank)
     targets = np.hstack([pca.encode(r) for r in (rows, *sensitivity)]) if len(sensitivity) else pca.encode(rows)
-    net, scaling, info = train(inputs, targets, width=options.width, depth=options.depth,
+    net, scaling, info = train(inputs, targets * weights, width=options.width, depth=options.depth,
                                max_iterations=options.max_iterations, seed=options.seed, progress=progress)
-    return Surrogate(pca, folded_layers(net, scaling), scaling.input_center, scaling.input_scale, info, pca_seconds,
+    layers = folded_layers(net, scaling)
+    w, b = layers[-1]
+    layers[-1] = (w / weights, b / weights)  # the outputs back to the coefficients themselves
+    return Surrogate(pca, layers, scaling.input_center, scaling.input_scale, info, pca_seconds,
                      n_materials=len(sensitivity))
 
 
@@ -183,8 +193,9 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
 def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, float], str]:
     """The FE discretisation error of a model's mesh bounded through the model itself, from
     `python -m studies model-vs-converged`'s JSON: per region, max over the cases of |model - u_fine| + GCI of
-    another element's converged estimate, plus the model's own surrogate error (the triangle inequality:
-    its FE is within the surrogate error of the model)."""
+    another element's converged estimate, plus the measured model's own surrogate error (the triangle inequality:
+    its FE is within that model's surrogate error of it). The bound is the mesh's, so it holds for `model`, any
+    surrogate on the same mesh, whose own surrogate error is then added for the end-to-end bound."""
     import json
 
     data = json.loads(Path(path).read_text())
@@ -194,8 +205,11 @@ def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, f
     if (mesh.get("n_tets"), mesh.get("n_nodes")) != (len(model.mesh.tets), len(model.mesh.nodes)):
         raise ValueError(f"--fe-error: {path} compares a model on {mesh.get('n_tets')} tets / {mesh.get('n_nodes')} "
                          f"nodes, not this one ({len(model.mesh.tets)} / {len(model.mesh.nodes)})")
-    surrogate = {k: r.surrogate_mm for k, r in model.manifest.accuracy.regions.items()}
-    bands = {k: v + surrogate[k] for k, v in data["max_over_cases"].items() if k in surrogate}
+    measured = data.get("model_surrogate_mm")
+    if measured is None:
+        raise ValueError(f"--fe-error: {path} does not record the surrogate error of the model it measured "
+                         "(model_surrogate_mm); run `python -m studies model-vs-converged` again")
+    bands = {k: v + measured[k] for k, v in data["max_over_cases"].items() if k in measured}
     tets = {float(lv["scale"]): lv["n_tets"] for lv in data["levels"]}
     groups: dict[str, list[str]] = {}  # the levels a case was judged on -> those cases (older files: one set for all)
     for case, row in data["cases"].items():
@@ -204,7 +218,7 @@ def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, f
     on = "; ".join(f"levels of {levels} tets for {' and '.join(cases)}" for levels, cases in groups.items())
     text = (f"FE discretisation: this model against the converged estimate of a {data['element'].replace('_', '-')} "
             f"grid-convergence study (the finest level plus its grid convergence index, Fs 1.25, point by point; {on}), "
-            f"max over the cases, plus the surrogate error, which bounds this mesh's FE from the model's answer "
+            f"max over the cases, plus the surrogate error of the model it measured ({data['provenance']['commit'][:7] if 'provenance' in data else data.get('model', '?')}), which bounds this mesh's FE from that model's answer "
             f"(`python -m studies model-vs-converged`, {Path(path).name})")
     return bands, text
 
@@ -292,6 +306,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     fe = fe_discretisation(fe_error, sweep.mesh) if fe_error is not None else None
     if fe is None and fe_estimate is not None:
         fe = fe_label_map_estimate(fe_estimate, sweep.manifest)
+    materials = materials_info(sweep.manifest.scene)
     test, inputs, rows = training_set(data, test_cases)
     sens_rows = sensitivity_rows(data.sensitivity, data.inputs, ~test & (data.inputs[:, 0] > 0))
     if len(rows) <= options.rank:
@@ -299,7 +314,8 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         raise ValueError(f"--rank: {len(rows)} snapshots{where} are left to train on once {int(test.sum())} are held "
                          f"out; {options.rank} modes need at least {options.rank + 1}")
     with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
-        surrogate = fit_surrogate(inputs, rows, options, sensitivity=sens_rows, progress=bar.update)
+        surrogate = fit_surrogate(inputs, rows, options, sensitivity=sens_rows, progress=bar.update,
+                                  sensitivity_weights=theta_rms(materials) if materials is not None else None)
     onnx_bytes = surrogate.onnx_bytes()
     session = onnx_session(onnx_bytes)
     metrics = _metrics(session, surrogate, data, test, inputs, cases)
@@ -309,7 +325,6 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     accuracy = _accuracy(region_errors(session, held_in, held_ref, sweep.mesh.node_sets), fe)
     s2 = surrogate.pca.singular_values**2
     m = sweep.manifest
-    materials = materials_info(m.scene)
     onnx_in = {"guide": "float32 [batch, 2]", "nodes": "int64 [k], optional, empty = all"}
     onnx_out = {"displacement": "float32 [batch, k, 3] mm"}
     output = "displacement = d x decoded field (exactly 0 at rest)"
@@ -318,8 +333,9 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
                        "in materials.inputs order (0 = nominal)",
                        materials_std=f"float32 [batch, {surrogate.n_materials}], optional, the std of ln E (0 = none)")
         onnx_out["displacement_std"] = "float32 [batch, k, 3] mm, sqrt(sum_i (S_i sigma_i)^2) per component"
-        output = ("displacement = d x (f0 + sum_i theta_i s_i), f0 and s_i = S_i / d decoded by one basis from (1 + m) x "
-                  "rank network outputs; displacement_std = d x sqrt(sum_i (sigma_i s_i)^2) (exactly 0 at rest)")
+        output = (f"displacement = d x (f0 + sum_i theta_i s_i), f0 and s_i = S_i / d decoded by one basis (u / d's "
+                  f"{surrogate.pca.n_primary} modes, then {surrogate.pca.rank - surrogate.pca.n_primary} for what they "
+                  "leave of the S_i / d) from (1 + m) x basis rank network outputs; displacement_std = d x sqrt(sum_i (sigma_i s_i)^2) (exactly 0 at rest)")
     manifest = folder.ModelManifest(
         name=Path(out).name,
         created_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -328,7 +344,8 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         mesh=folder.MeshInfo(n_nodes=len(sweep.mesh.nodes), n_tets=len(sweep.mesh.tets),
                              n_dofs=3 * len(sweep.mesh.nodes), tissues=list(sweep.mesh.tissue_names)),
         fit=options,
-        pca=folder.PcaInfo(rank=surrogate.pca.rank, energy=surrogate.pca.energy, method="snapshots (Gram), float64",
+        pca=folder.PcaInfo(rank=surrogate.pca.rank, energy=surrogate.pca.energy, method=pca_method(surrogate.pca),
+                           n_primary=surrogate.pca.n_primary,
                            energy_by_rank=[float(v) for v in np.cumsum(s2)[:64] / s2.sum()]),
         network=folder.NetworkInfo(inputs=["displacement_mm", "angle_deg"], width=options.width, depth=options.depth,
                                    activation="tanh", optimizer="L-BFGS, variable projection", **surrogate.info,
@@ -348,6 +365,13 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     )
     report = table3_markdown(manifest, PAPER_TABLE3)
     return folder.write_model_folder(out, onnx_bytes=onnx_bytes, mesh=sweep.mesh, manifest=manifest, report=report)
+
+
+def pca_method(pca: Pca) -> str:
+    if pca.n_primary is None:
+        return "snapshots (Gram), float64"
+    return (f"snapshots (Gram), float64: u / d's own {pca.n_primary} modes (energy is theirs), then "
+            f"{pca.rank - pca.n_primary} modes of what they leave of the sensitivities S_i / d")
 
 
 def summary_line(manifest: folder.ModelManifest) -> str:

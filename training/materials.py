@@ -32,6 +32,17 @@ def sensitivity_rows(sensitivity: dict[str, np.ndarray] | None, inputs: np.ndarr
     return [s[keep].reshape(int(keep.sum()), -1) / d for s in sensitivity.values()]
 
 
+def theta_rms(info: MaterialsInfo) -> np.ndarray:
+    """Per tissue the root mean square of theta = ln(E / E_nominal) over its declared range (uniform in theta):
+    the weight of its S_i in the fit, so the loss is the mean squared error of u + sum_i theta_i S_i over the
+    ranges (u and the S_i errors add in quadrature for independent, centred theta_i)."""
+    out = []
+    for m in info.inputs:
+        lo, hi = (np.log(e / m.nominal_youngs_kpa) for e in m.youngs_kpa_range)
+        out.append(np.sqrt((lo * lo + lo * hi + hi * hi) / 3))
+    return np.array(out)
+
+
 def materials_info(scene: dict) -> MaterialsInfo | None:
     """The manifest's material inputs from a sweep's scene (its JSON), in the scene's order; None without [materials]."""
     spec = scene.get("materials")
@@ -65,8 +76,10 @@ def read_material_cases(folder: str | Path, tissues: list[str]) -> list[dict]:
             for i, t in enumerate(tissues):
                 if t in varied:
                     theta[:, i], sens[i] = z["theta"][:, varied.index(t)], z[sensitivity_key(t)]
+            failures = z["failures"] if "failures" in z.files else np.array([""] * len(theta))
             cases.append({"guide": np.array([float(z["displacement_mm"]), float(z["angle_deg"])]),
-                          "u0": z["displacement"], "sens": sens, "theta": theta, "fresh": z["fresh"]})
+                          "u0": z["displacement"], "sens": sens, "theta": theta, "fresh": z["fresh"],
+                          "failures": [str(f) for f in failures]})
     return cases
 
 
@@ -74,9 +87,13 @@ def first_order_errors(cases: list[dict], session, node_sets: dict, regions: tup
     """Largest nodal error (mm) per region over every case and material point: the first-order FE model and the
     ONNX model (inputs guide, materials) against the fresh FE solves."""
     worst = {r: [0.0, 0.0] for r in regions}
-    n = 0
+    n, unsolved = 0, []
     for c in cases:
-        for theta, fresh in zip(c["theta"], c["fresh"]):
+        for theta, fresh, failure in zip(c["theta"], c["fresh"], c["failures"]):
+            if failure:
+                unsolved.append(f"{c['guide'][0]:g} mm / {c['guide'][1]:g} deg, theta {np.round(theta, 3).tolist()}: "
+                                f"{failure}")
+                continue
             linear = c["u0"] + np.einsum("m,mnk->nk", theta, c["sens"])
             model = session.run(["displacement"], {"guide": c["guide"][None].astype(np.float32),
                                                    "materials": theta[None].astype(np.float32)})[0][0]
@@ -88,8 +105,13 @@ def first_order_errors(cases: list[dict], session, node_sets: dict, regions: tup
     points = ", ".join(f"{c['guide'][0]:g} mm / {c['guide'][1]:g} deg" for c in cases)
     reference = (f"fresh FE solves on the model's mesh at {n} material points (each tissue at both ends of its declared "
                  f"range, then the two corners where the tissues alternate between their ends), at the guide positions {points}: the first-order model u0 + sum_i "
-                 "S_i ln(E_i/E_i0) from the nominal solve's sensitivities, and the ONNX model, against them")
-    return MaterialAccuracy(reference=reference, n_points=n, regions={
+                 "S_i ln(E_i/E_i0) from the nominal state's sensitivities, and the ONNX model, against them")
+    if not n:
+        raise ValueError("--cases: the FE found no equilibrium at any material point; there is nothing to compare")
+    if unsolved:
+        reference += (f"; at {len(unsolved)} more points the FE found no equilibrium, so they are not compared "
+                      "(materials.accuracy.unsolved)")
+    return MaterialAccuracy(reference=reference, n_points=n, unsolved=unsolved, regions={
         r: MaterialRegionAccuracy(first_order_mm=a, model_mm=b) for r, (a, b) in worst.items()})
 
 

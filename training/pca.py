@@ -21,6 +21,7 @@ class Pca:
     mean: np.ndarray  # (3 n_nodes,)
     basis: np.ndarray  # (rank, 3 n_nodes), orthonormal rows
     singular_values: np.ndarray  # (n_snapshots,) all of them, to report energy at any rank
+    n_primary: int | None = None  # fit_pca_with_extra: the first n_primary rows are the primary rows' own modes
 
     @property
     def rank(self) -> int:
@@ -28,9 +29,9 @@ class Pca:
 
     @property
     def energy(self) -> float:
-        """Fraction of the centred data's variance that the kept modes capture."""
+        """Fraction of the centred (primary) data's variance that its own modes capture."""
         s2 = self.singular_values**2
-        return float(s2[: self.rank].sum() / s2.sum())
+        return float(s2[: self.n_primary or self.rank].sum() / s2.sum())
 
     def encode(self, x: np.ndarray) -> np.ndarray:
         return (x - self.mean) @ self.basis.T  # (n, rank)
@@ -39,14 +40,9 @@ class Pca:
         return self.mean + coefficients @ self.basis  # (n, 3 n_nodes)
 
 
-def fit_pca(x: np.ndarray, rank: int) -> Pca:
-    """Fit the leading `rank` modes of rows x (n_snapshots, 3 n_nodes)."""
-    if not 1 <= rank < len(x):
-        raise ValueError(f"--rank: must be between 1 and {len(x) - 1} (the number of snapshots - 1), got {rank}")
-    x = np.asarray(x, dtype=np.float64)
-    mean = x.mean(axis=0)
-    xc = x - mean
-    gram = xc @ xc.T  # (n, n)
+def _modes(x: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
+    """(basis (rank, n_cols) orthonormal rows, all singular values) of rows x by the method of snapshots."""
+    gram = x @ x.T  # (n, n)
     eigval, eigvec = np.linalg.eigh(gram)
     order = np.argsort(eigval)[::-1]
     eigval, eigvec = np.clip(eigval[order], 0.0, None), eigvec[:, order]
@@ -55,8 +51,40 @@ def fit_pca(x: np.ndarray, rank: int) -> Pca:
     if rank > numerical:
         log.warning("rank %d asked for, the snapshots span %d modes: using %d", rank, numerical, numerical)
         rank = numerical
-    basis = (eigvec[:, :rank] / s[:rank]).T @ xc  # (rank, 3 n_nodes)
-    # One Gram-Schmidt pass removes the round-off the S^-1 scaling leaves in weak modes.
+    basis = (eigvec[:, :rank] / s[:rank]).T @ x  # (rank, n_cols)
+    return _orthonormal(basis), s
+
+
+def _orthonormal(basis: np.ndarray) -> np.ndarray:
+    """One Gram-Schmidt pass (QR), signs kept: removes the round-off the S^-1 scaling leaves in weak modes."""
     q, r = np.linalg.qr(basis.T)
-    basis = (q * np.sign(np.diag(r))).T
+    return (q * np.sign(np.diag(r))).T
+
+
+def fit_pca_with_extra(x: np.ndarray, extra: np.ndarray, rank: int, extra_rank: int) -> Pca:
+    """The leading `rank` modes of the primary rows x, then `extra_rank` modes of what they leave of the `extra`
+    rows: one orthonormal basis of rank + extra_rank rows about x's mean.
+
+    A material model decodes u / d and the sensitivities S_i / d with one basis. Fitted on all the rows together,
+    the S_i take modes from u (on the default sweep, rank 64 shared: u off by 0.018 mm at the held-out cases
+    against 0.005 from u's own 64 modes); here u keeps its own modes and S_i get theirs on top."""
+    if not 1 <= rank < len(x):
+        raise ValueError(f"--rank: must be between 1 and {len(x) - 1} (the number of snapshots - 1), got {rank}")
+    if not 1 <= extra_rank < len(extra):
+        raise ValueError(f"--sensitivity-rank: must be between 1 and {len(extra) - 1}, got {extra_rank}")
+    primary = fit_pca(x, rank)
+    rest = np.asarray(extra, dtype=np.float64) - primary.mean
+    rest -= (rest @ primary.basis.T) @ primary.basis
+    more, _ = _modes(rest, extra_rank)
+    return Pca(mean=primary.mean, basis=_orthonormal(np.vstack([primary.basis, more])),
+               singular_values=primary.singular_values, n_primary=primary.rank)
+
+
+def fit_pca(x: np.ndarray, rank: int) -> Pca:
+    """Fit the leading `rank` modes of rows x (n_snapshots, 3 n_nodes)."""
+    if not 1 <= rank < len(x):
+        raise ValueError(f"--rank: must be between 1 and {len(x) - 1} (the number of snapshots - 1), got {rank}")
+    x = np.asarray(x, dtype=np.float64)
+    mean = x.mean(axis=0)
+    basis, s = _modes(x - mean, rank)
     return Pca(mean=mean, basis=basis, singular_values=s)

@@ -3,6 +3,7 @@ nominal by default), std_mm and the error budget on every answer, /model's input
 refuses the field."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,12 +84,34 @@ def test_a_material_outside_its_range_is_refused_naming_the_field(mat_client, ma
     assert reply.json()["detail"][0]["field"] == field
 
 
-def test_a_model_without_material_inputs_refuses_materials(client):
-    reply = client.post("/predict", json={**GUIDE, "materials": {"prostate": {"youngs_kpa": 70.0}}})
+def test_a_model_without_material_inputs_refuses_materials(tiny_client):
+    reply = tiny_client.post("/predict", json={**GUIDE, "materials": {"prostate": {"youngs_kpa": 70.0}}})
     assert reply.status_code == 422
     error = reply.json()["detail"][0]
     assert error["field"] == "materials" and "this model takes no material inputs" in error["message"]
-    assert "std_mm" not in client.post("/predict", json={**GUIDE, "region": "markers"}).json()
+    assert "std_mm" not in tiny_client.post("/predict", json={**GUIDE, "region": "markers"}).json()
+
+
+def test_the_served_default_model_takes_the_default_scenes_materials(client):
+    """models/default lists the four soft tissues of default.toml's [materials], with their ranges; an old client
+    (guide only) gets the nominal answer with the scene's std, and a value outside a range is a 422 naming it."""
+    from fem_offline.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[2] / "fem_offline" / "scenes" / "default.toml")
+    inputs = client.get("/model").json()["materials"]["inputs"]
+    assert [m["tissue"] for m in inputs] == list(scene.materials)
+    for m in inputs:
+        assert tuple(m["youngs_kpa_range"]) == pytest.approx(scene.materials[m["tissue"]].youngs_kpa_range)
+    old = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers"}).json()
+    nominal = {m["tissue"]: {"youngs_kpa": m["nominal_youngs_kpa"]} for m in inputs}
+    given = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers",
+                                          "materials": nominal}).json()
+    assert given["positions"] == old["positions"] and np.asarray(old["std_mm"]).max() > 0
+    low = inputs[0]["youngs_kpa_range"][0] * 0.9
+    refused = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0,
+                                            "materials": {inputs[0]["tissue"]: {"youngs_kpa": low}}})
+    assert refused.status_code == 422
+    assert refused.json()["detail"][0]["field"] == f"materials.{inputs[0]['tissue']}.youngs_kpa"
 
 
 def test_the_error_budget_names_its_terms_and_adds_them_up(mat_client):

@@ -106,7 +106,7 @@ def test_model_summary(client, folder):
     assert m["regions"]["markers"] == 8 and m["metrics"]["table3"]["e_nn_mm"] <= 0.01
     assert m["limits"] == {"max_points": 50, "max_body_bytes": 65536}
     assert m["accuracy"] == folder.manifest.accuracy.model_dump(mode="json")  # the end-to-end bounds, per region
-    assert m["fit"]["rank"] == folder.manifest.pca.rank
+    assert m["fit"]["rank"] == folder.manifest.fit.rank and m["pca"]["rank"] == folder.manifest.pca.rank
 
 
 def test_mesh_endpoint_gives_nodes_and_surfaces(client, folder):

@@ -20,7 +20,7 @@ def test_folder_holds_what_the_manifest_promises(tiny_model, tiny_sweep, tiny_te
     assert m["pca"]["rank"] == 8 and 0.999 < m["pca"]["energy"] <= 1.0
     assert m["scene"]["sha256"] == sweep.manifest.scene_sha256
     assert parse_scene(m["scene"]["spec"]).sha256() == m["scene"]["sha256"]  # the full scene, as solved
-    assert m["fit"] == {"rank": 8, "width": 60, "depth": 1, "max_iterations": 300, "seed": 0,
+    assert m["fit"] == {"rank": 8, "sensitivity_rank": 32, "width": 60, "depth": 1, "max_iterations": 300, "seed": 0,
                         "test_cases": [list(c) for c in tiny_test_cases]}
     # the linear sweep inverts elements beyond valid_up_to_mm: the model is cut there (test_inversion_stability.py)
     cut_mm = sweep.manifest.validity.valid_up_to_mm
@@ -145,7 +145,7 @@ def test_cli_writes_the_model_its_flags_ask_for_and_prints_its_metrics(tiny_swee
                "50", "--seed", "3", "--test-case", "5/-2")
     assert run.returncode == 0, run.stderr
     m = read_model_folder(tmp_path / "m").manifest
-    assert m.fit.model_dump() == {"rank": 4, "width": 12, "depth": 1, "max_iterations": 50, "seed": 3,
+    assert m.fit.model_dump() == {"rank": 4, "sensitivity_rank": 32, "width": 12, "depth": 1, "max_iterations": 50, "seed": 3,
                                   "test_cases": ((5.0, -2.0),)}
     assert m.pca.rank == 4 and m.network.width == 12 and m.network.iterations <= 50
     assert [(r.displacement_mm, r.angle_deg) for r in m.metrics.table3] == [(5.0, -2.0)]
@@ -178,20 +178,24 @@ def test_fe_band_is_the_studys_band_of_the_model_mesh_level(tmp_path):
         fe_discretisation(study, mesh(100))
 
 
-def _model_vs_converged(model, tmp_path, gaps, n_tets=None):
+MEASURED_SURROGATE = {"markers": 0.004, "prostate_surface": 0.006, "all_nodes": 0.05}  # of the model the study measured
+
+
+def _model_vs_converged(model, tmp_path, gaps, n_tets=None, measured=MEASURED_SURROGATE):
     folder = read_model_folder(model)
     data = {"kind": "model_vs_converged", "model": str(model), "element": "taylor_hood",
             "levels": [{"scale": s, "n_tets": n, "n_nodes": 2 * n} for s, n in ((1.69, 100), (1.3, 200), (1.0, 400), (0.769, 800))],
             "model_mesh": {"n_tets": n_tets or len(folder.mesh.tets), "n_nodes": len(folder.mesh.nodes)},
             "cases": {"10 mm, 0 deg": {"scales": [1.3, 1.0, 0.769]}, "10 mm, 10 deg": {"scales": [1.69, 1.3, 1.0]}},
-            "max_over_cases": gaps}
+            "max_over_cases": gaps, **({"model_surrogate_mm": measured} if measured else {})}
     path = tmp_path / "fe_error.json"
     path.write_text(json.dumps(data))
     return path
 
 
 def test_restamp_changes_only_the_accuracy_and_keeps_the_folder_valid(tiny_model, tmp_path):
-    """`training restamp` stamps the FE error through the model (measured gap + the surrogate's own error),
+    """`training restamp` stamps the FE error through the model the study measured (its gap + that model's own
+    surrogate error: the mesh's bound), adds this model's surrogate error end to end,
     rewrites report.md and the manifest's sha256 of it, leaves the ONNX graph and the mesh byte for byte,
     and the folder still reads; a JSON of another mesh is refused with one line, exit 2."""
     import shutil
@@ -208,8 +212,8 @@ def test_restamp_changes_only_the_accuracy_and_keeps_the_folder_valid(tiny_model
     for name, gap in gaps.items():
         r = after.accuracy.regions[name]
         assert r.surrogate_mm == before.accuracy.regions[name].surrogate_mm
-        assert r.fe_discretisation_mm == pytest.approx(gap + r.surrogate_mm)
-        assert r.end_to_end_mm >= r.surrogate_mm + r.fe_discretisation_mm - 1e-12
+        assert r.fe_discretisation_mm == pytest.approx(gap + MEASURED_SURROGATE[name])
+        assert r.end_to_end_mm == pytest.approx(r.surrogate_mm + r.fe_discretisation_mm)
     assert "taylor-hood" in after.accuracy.reference
     # each case names the levels it was judged on (a case the finest level has not solved: the three below)
     assert "levels of 200 / 400 / 800 tets for 10 mm, 0 deg; levels of 100 / 200 / 400 tets for 10 mm, 10 deg" \
@@ -221,4 +225,6 @@ def test_restamp_changes_only_the_accuracy_and_keeps_the_folder_valid(tiny_model
     assert after.model_dump(exclude={"accuracy", "files"}) == before.model_dump(exclude={"accuracy", "files"})
     wrong = _cli("restamp", "--model", model, "--fe-error", _model_vs_converged(model, tmp_path, gaps, n_tets=7))
     assert wrong.returncode == 2 and wrong.stderr.startswith("error: --fe-error:") and "Traceback" not in wrong.stderr
+    unstated = _cli("restamp", "--model", model, "--fe-error", _model_vs_converged(model, tmp_path, gaps, measured=None))
+    assert unstated.returncode == 2 and "model_surrogate_mm" in unstated.stderr
     assert read_model_folder(model).manifest == after

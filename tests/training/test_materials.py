@@ -77,3 +77,37 @@ def test_material_check_stamps_the_first_order_error_against_fresh_fe(tiny_mater
 def test_material_check_refuses_a_model_without_material_inputs(tiny_model, material_cases, capsys):
     assert main(["material-check", "--model", str(tiny_model), "--cases", str(material_cases)]) == 2
     assert "takes no material inputs" in capsys.readouterr().err
+
+
+def test_a_material_point_without_equilibrium_is_kept_counted_and_named(tiny_material_model, tiny_material_sweep,
+                                                                       tmp_path, monkeypatch, capsys):
+    """A point where the FE finds no equilibrium does not stop the others: its file keeps it (NaN, the message),
+    and material-check compares the rest, counts them and names the one it could not compare."""
+    import shutil
+
+    from contracts.mesh import read_mesh
+    from fem_offline import material_cases as mc
+    from fem_offline.fe.newton import ConvergenceError
+
+    solve = mc._fresh
+
+    def corner_fails(scene, mesh, tissues, theta, *rest):
+        if np.count_nonzero(theta) > 1:
+            raise ConvergenceError("line search found no step")
+        return solve(scene, mesh, tissues, theta, *rest)
+
+    monkeypatch.setattr(mc, "_fresh", corner_fails)
+    scene = tiny_material_scene(prostate=TINY_MATERIALS["prostate"], adipose=TINY_MATERIALS["adipose"])
+    (tmp_path / "cases").mkdir()
+    case = mc.solve_material_case(scene, read_mesh(tiny_material_sweep / "mesh.npz"), 5.0, 0.0,
+                                  tmp_path / "cases" / "material_000.npz")  # in this process, where the patch is
+    with np.load(case) as z:
+        assert [bool(f) for f in z["failures"]] == [False] * 4 + [True] * 2
+        assert np.isnan(z["fresh"][4:]).all() and np.isfinite(z["fresh"][:4]).all()
+    model = tmp_path / "model"
+    shutil.copytree(tiny_material_model, model)
+    assert main(["material-check", "--model", str(model), "--cases", str(tmp_path / "cases")]) == 0
+    acc = read_model_folder(model).manifest.materials.accuracy
+    assert acc.n_points == 4 and len(acc.unsolved) == 2 and "line search" in acc.unsolved[0]
+    assert all(np.isfinite(r.first_order_mm) and np.isfinite(r.model_mm) for r in acc.regions.values())
+    assert capsys.readouterr().out.count("found no equilibrium") == 2
