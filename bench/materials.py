@@ -60,7 +60,9 @@ def timings(model: Path, repeat: int) -> dict[str, tuple[float, float]]:
     predictor, request = Predictor(folder), predict_request_model(model_info(folder, Settings(model=model)), 200)
     prostate = folder.tets[np.flatnonzero(folder.mesh.tissue == folder.manifest.mesh.tissues.index("prostate"))[:100]]
     points = [*folder.nodes[prostate[:, :4]].mean(axis=1).tolist(), *folder.nodes[folder.regions["markers"]].tolist()]
-    extra = {"materials": {"prostate": {"youngs_kpa": 11.0, "std_percent": 15.0}}} if folder.manifest.materials else {}
+    info = folder.manifest.materials  # every tissue at its nominal E with its std: the full uncertainty path
+    extra = {"materials": {m.tissue: {"youngs_kpa": m.nominal_youngs_kpa, "std_percent": m.std_percent}
+                           for m in info.inputs}} if info else {}
     out = {}
     for name, body in (("markers", {"region": "markers"}), ("markers + 100 points", {"points": points}),
                        ("full mesh", {})):
