@@ -117,6 +117,7 @@ def _manifest(src, *, name: str, fine, surrogate, options, n_train: int, seconds
                                     regions={}),
         "timing": folder.Timing(pca_seconds=surrogate.pca_seconds, train_seconds=surrogate.info["seconds"],
                                 total_seconds=seconds),
+        "materials": None,  # the refitted graph takes (d, beta) alone: the source decoded at its nominal materials
         "regions": {}, "files": {}})
 
 

@@ -10,17 +10,20 @@ service/loadtest.py for each scenario. The paper-scale decoder (bench/paper_deco
 into runs/ first when missing. Beside the served figures it measures, pinned to the same cores:
 the in-process decode capacity (onnxruntime, batches of 8, the default lanes and threads) and the
 per-request work outside onnxruntime (reference positions, reply bodies), alone. With a 312k-node
-JSON load it polls /healthz (the event loop must stay free). Prints the tables and the issue #35
+JSON load it polls /healthz from another process (the event loop must stay free). Prints the tables and the issue #35
 targets; writes everything, with the machine it ran on, through studies.results.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
 import threading
 import time
-import urllib.request
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -54,26 +57,41 @@ def configs(n_cores: int) -> list[tuple[str, list[str]]]:
     return [*off, ("on", ["--batching", "true"])]
 
 
-def poll_health(url: str, stop: threading.Event, out: list[float]) -> None:
-    """GET /healthz every 5 ms until `stop`; each latency in ms into `out`."""
-    while not stop.is_set():
-        t0 = time.perf_counter()
-        urllib.request.urlopen(f"{url}/healthz", timeout=10).read()
-        out.append((time.perf_counter() - t0) * 1e3)
-        stop.wait(0.005)
+# /healthz polled from its own process: a thread beside the load's 8 client threads would wait for their GIL, and
+# time that wait as the service's
+POLLER = """
+import json, sys, threading, time, urllib.request
+stop, out = threading.Event(), []
+threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+print("polling", flush=True)
+while not stop.is_set():
+    t0 = time.perf_counter()
+    urllib.request.urlopen(sys.argv[1] + "/healthz", timeout=10).read()
+    out.append((time.perf_counter() - t0) * 1e3)
+    stop.wait(0.005)
+print(json.dumps(out), flush=True)
+"""
+
+
+@contextmanager
+def health_poller(url: str):
+    """GET /healthz every 5 ms from another process (on this one's cores) for the block; the latencies (ms) are in
+    the yielded list once the block ends."""
+    out: list[float] = []
+    proc = subprocess.Popen([sys.executable, "-c", POLLER, url], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        proc.stdout.readline()  # started
+        yield out
+    finally:
+        text, _ = proc.communicate("", timeout=60)
+        out.extend(json.loads(text.strip().splitlines()[-1]) if text.strip() else [])
 
 
 def run_scenario(url: str, scenario, duration_s: float, *, large: bool) -> dict:
     name, region, fmt, clients = scenario
     before = loadtest.batch_counts(url)
-    health, stop = [], threading.Event()
-    poller = threading.Thread(target=poll_health, args=(url, stop, health), daemon=True) if large and fmt == "json" else None
-    if poller:
-        poller.start()
-    s = loadtest.run(url, concurrency=clients, duration_s=duration_s, fmt=fmt, region=region, warmup=5).summary()
-    stop.set()
-    if poller:
-        poller.join()
+    with health_poller(url) if large and fmt == "json" else nullcontext([]) as health:
+        s = loadtest.run(url, concurrency=clients, duration_s=duration_s, fmt=fmt, region=region, warmup=5).summary()
     batches, requests = np.subtract(loadtest.batch_counts(url), before)
     row = {"scenario": name, "region": region or "full", "format": fmt, "clients": clients, **s,
            "mean_batch": requests / batches if batches else None}

@@ -265,6 +265,25 @@ def onnx_session(model: bytes | str | Path, *, threads: int = 1):
     return ort.InferenceSession(model if isinstance(model, bytes) else str(model), so, providers=["CPUExecutionProvider"])
 
 
+MATERIAL_INPUTS = frozenset({"materials", "materials_std"})
+
+
+def check_graph(folder: "ModelFolder", session=None) -> None:
+    """ModelError unless model.onnx takes the inputs its manifest promises: `guide`, and `materials` and
+    `materials_std` exactly when the manifest declares materials (a request's materials need both)."""
+    session = session or onnx_session(folder.path / "model.onnx")
+    # an optional input (`nodes`, the materials) is an overridable initializer, which get_inputs() leaves out
+    names = {i.name for i in (*session.get_inputs(), *session.get_overridable_initializers())}
+    if "guide" not in names:
+        raise ModelError(f"{folder.path}: model.onnx takes no `guide` input")
+    declared = folder.manifest.materials is not None
+    if declared and not MATERIAL_INPUTS <= names:
+        raise ModelError(f"{folder.path}: the manifest declares materials, but model.onnx takes no "
+                         f"{' or '.join(sorted(MATERIAL_INPUTS - names))} input; rebuild the model or drop `materials`")
+    if not declared and names & MATERIAL_INPUTS:
+        raise ModelError(f"{folder.path}: model.onnx takes materials, but the manifest declares none (their ranges)")
+
+
 @dataclass(frozen=True)
 class ModelFolder:
     path: Path

@@ -32,6 +32,10 @@ MAX_DURATION_S = 300.0
 MAX_REQUESTS = 1_000_000
 
 
+class WarmUpFailed(RuntimeError):
+    """A warm-up request got no 200: the load is not started (rather than waiting for it forever)."""
+
+
 @dataclass
 class Result:
     latencies_ms: np.ndarray
@@ -154,10 +158,21 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
         conn = http.client.HTTPConnection(host, port, timeout=30)
         bodies = _bodies(envelope, region, 512, seed + i, extra)
         buffer = bytearray()
-        for k in range(warmup):
-            conn.request("POST", "/predict", body=bodies[k % 512], headers=headers)
-            read_reply(conn.getresponse(), buffer)
-        start.wait()
+        try:
+            for k in range(warmup):
+                conn.request("POST", "/predict", body=bodies[k % 512], headers=headers)
+                reply = conn.getresponse()
+                n = read_reply(reply, buffer)
+                if reply.status != 200:
+                    raise WarmUpFailed(f"HTTP {reply.status}: {bytes(buffer[:min(n, 300)]).decode(errors='replace')}")
+        except (OSError, http.client.HTTPException, WarmUpFailed) as exc:
+            warmup_failures.append(exc)
+            start.abort()  # the others (and run) stop waiting at the barrier
+            return
+        try:
+            start.wait()
+        except threading.BrokenBarrierError:
+            return
         k = 0
         while time.perf_counter() < deadline_at[0]:
             with lock:
@@ -184,10 +199,14 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
 
     deadline_at = [time.perf_counter() + 2 * MAX_DURATION_S]  # set for real once every client has warmed up
     start = threading.Barrier(concurrency + 1)
+    warmup_failures: list[Exception] = []
     threads = [threading.Thread(target=client, args=(i,), daemon=True) for i in range(concurrency)]
     for t in threads:
         t.start()
-    start.wait()  # every client has warmed up
+    try:
+        start.wait()  # every client has warmed up
+    except threading.BrokenBarrierError:
+        raise WarmUpFailed(f"a warm-up request to {url} failed: {warmup_failures[0]}") from None
     t0 = time.perf_counter()
     deadline_at[0] = t0 + span
     for t in threads:
@@ -213,6 +232,9 @@ def main() -> int:
                      fmt=args.format, region=args.region)
     except ConnectionRefusedError:
         print(f"error: nothing listens on {args.url}; start it with `make serve`", file=sys.stderr)
+        return 2
+    except WarmUpFailed as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     s = result.summary()
     print(f"{args.region or 'full mesh'} {args.format} c={args.concurrency}: {s['requests']} requests, "

@@ -9,12 +9,12 @@ import logging
 import numpy as np
 
 from contracts.interpolate import PointLocator, interpolate
-from contracts.model import ModelError, ModelFolder, ModelManifest, onnx_session, read_model_folder
+from contracts.model import ModelError, ModelFolder, ModelManifest, check_graph, onnx_session, read_model_folder
 
 from .materials import budget_parts
 
 log = logging.getLogger(__name__)
-__all__ = ["ModelError", "ModelFolder", "OutsideMesh", "PointLocator", "Predictor", "read_model_folder"]
+__all__ = ["ModelError", "ModelFolder", "check_graph", "OutsideMesh", "PointLocator", "Predictor", "read_model_folder"]
 
 
 class OutsideMesh(ValueError):

@@ -30,3 +30,20 @@ def test_a_stale_or_edited_manifest_is_refused_with_its_reason(tmp_path, change,
     (bad / "manifest.json").write_text(json.dumps({**data, **change}))
     with pytest.raises(ModelError, match=message):
         read_model_folder(bad)
+
+
+def test_a_manifest_promising_inputs_its_graph_lacks_is_refused(tmp_path, tiny_model, tiny_material_model):
+    """A material manifest over a plain graph would answer every request with a 500: refused at start instead."""
+    from contracts.model import check_graph
+
+    check_graph(read_model_folder(tiny_model))
+    check_graph(read_model_folder(tiny_material_model))
+    for graph, manifest, message in ((tiny_model, tiny_material_model, "takes no materials or materials_std input"),
+                                     (tiny_material_model, tiny_model, "the manifest declares none")):
+        bad = tmp_path / graph.name
+        shutil.copytree(graph, bad)
+        data = json.loads((bad / "manifest.json").read_text())
+        data["materials"] = json.loads((manifest / "manifest.json").read_text()).get("materials")
+        (bad / "manifest.json").write_text(json.dumps(data))
+        with pytest.raises(ModelError, match=message):
+            check_graph(read_model_folder(bad))

@@ -1,0 +1,60 @@
+"""The load generator stops with the reason when the service fails its warm-up, instead of waiting forever."""
+
+import json
+import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import pytest
+
+from service import loadtest
+
+
+class _Failing(BaseHTTPRequestHandler):
+    """GET /model answers an envelope; every POST /predict a 500 (as a broken model would)."""
+
+    def do_GET(self):
+        self._send(200, json.dumps({"envelope": {"displacement_mm": [0, 5], "angle_deg": [-10, 10]}}).encode())
+
+    def do_POST(self):
+        self.rfile.read(int(self.headers["content-length"]))
+        self._send(500, b'{"detail": "model.onnx takes no materials_std input"}')
+
+    def _send(self, status, body):
+        self.send_response(status)
+        self.send_header("content-length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture
+def failing_url():
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _Failing)
+    server.protocol_version = "HTTP/1.1"
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+
+
+def test_a_failing_warm_up_ends_the_run_with_the_reply(failing_url):
+    raised = []
+
+    def drive():
+        try:
+            loadtest.run(failing_url, concurrency=4, duration_s=1, fmt="binary", warmup=2)
+        except loadtest.WarmUpFailed as exc:
+            raised.append(str(exc))
+
+    worker = threading.Thread(target=drive, daemon=True)
+    worker.start()
+    worker.join(20)
+    assert not worker.is_alive(), "the load generator hung on a failed warm-up"
+    assert raised and "HTTP 500: " in raised[0] and "materials_std" in raised[0]
+
+
+def test_the_cli_says_so_and_exits_2(failing_url, capsys, monkeypatch):
+    monkeypatch.setattr("sys.argv", ["loadtest", "--url", failing_url, "--concurrency", "2", "--duration", "1"])
+    assert loadtest.main() == 2
+    assert "error: a warm-up request" in capsys.readouterr().err
