@@ -19,7 +19,7 @@ from .igtl import igtl_server
 from .info import model_info
 from .limits import PendingLimit, RateLimit
 from .metrics import Metrics, PredictMetrics
-from .model import ModelError, OutsideMesh, Predictor, check_graph, read_model_folder
+from .model import ModelError, OutsideMesh, Predictor, check_graph, onnx_session, read_model_folder
 from .predict import cheap_keys, predict_batch
 from .routes import HEALTH_PATHS, Serving, predict_router, router
 from .schemas import field_hints, predict_request_model
@@ -36,13 +36,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # come from its manifest, and FastAPI builds the OpenAPI schema from the route annotations when
     # the routes are added, before any lifespan runs. ModelError stops the start with a clear message.
     folder = read_model_folder(settings.model)
-    check_graph(folder)  # a manifest that promises inputs the graph lacks would answer 500s
+    # the session is opened here, once: a manifest that promises inputs the graph lacks would answer 500s
+    session = onnx_session(folder.path / "model.onnx", threads=settings.threads)
+    check_graph(folder, session)
     info = model_info(folder, settings)
     igtl = igtl_server(settings, folder)  # None unless settings.igtl; IgtlError for a target outside the mesh
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        predictor = Predictor(folder, threads=settings.threads)
+        predictor = Predictor(folder, session=session)
         if settings.batching:
             app.state.batcher = Batcher(partial(predict_batch, predictor), max_batch=settings.batch_max_size,
                                         max_delay_s=settings.batch_max_delay_ms / 1e3, max_queue=settings.max_pending,

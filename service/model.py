@@ -14,7 +14,7 @@ from contracts.model import ModelError, ModelFolder, ModelManifest, check_graph,
 from .materials import budget_parts
 
 log = logging.getLogger(__name__)
-__all__ = ["ModelError", "ModelFolder", "check_graph", "OutsideMesh", "PointLocator", "Predictor", "read_model_folder"]
+__all__ = ["ModelError", "ModelFolder", "check_graph", "onnx_session", "OutsideMesh", "PointLocator", "Predictor", "read_model_folder"]
 
 
 class OutsideMesh(ValueError):
@@ -28,9 +28,10 @@ class OutsideMesh(ValueError):
 class Predictor:
     """Decode displacements for all nodes, a region, or interior points."""
 
-    def __init__(self, folder: ModelFolder, *, threads: int = 1):
+    def __init__(self, folder: ModelFolder, *, threads: int = 1, session=None):
+        """`session`: the folder's onnxruntime session when the caller opened it already (else one with `threads`)."""
         self.folder = folder
-        self.session = onnx_session(folder.path / "model.onnx", threads=threads)
+        self.session = session or onnx_session(folder.path / "model.onnx", threads=threads)
         self.locator = PointLocator(folder.nodes, folder.tets)
         self.nodes32 = folder.nodes.astype(np.float32)
         # the error budget's per-region bounds, from the manifest once (not per request); {} without materials
