@@ -40,6 +40,13 @@ def atomic_savez(path: str | Path, *, compressed: bool = False, **arrays) -> Pat
     return path
 
 
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    path = Path(path)
+    with _atomic(path, "wb") as fh:
+        fh.write(data)
+    return path
+
+
 def atomic_write_text(path: str | Path, text: str) -> Path:
     path = Path(path)
     with _atomic(path, "w") as fh:

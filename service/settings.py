@@ -51,7 +51,7 @@ class Settings(BaseSettings):
         "batches decoded at once, each in its own thread (default: from the usable cores)"))]
     inline_max_ms: Annotated[float, Field(ge=0, le=10, description=(
         "decode on the event loop, with no thread hop, a request whose decode measured at start takes at most "
-        "this long, when no batch is waiting or running; 0: never"))] = 0.5
+        "this long, when no batch is waiting or running; 0: never"))] = 1.0
     max_pending: Annotated[int, Field(ge=1, le=100_000, description=(
         "most /predict requests in the service at once (decoding or waiting); more get 503"))] = 256
 

@@ -137,3 +137,61 @@ def stamp(model: Path, cases: Path):
     manifest = manifest.model_copy(update={"files": {**manifest.files, "report.md": sha256(Path(model) / "report.md")}})
     atomic_write_text(Path(model) / "manifest.json", manifest.model_dump_json(indent=2) + "\n")
     return manifest
+
+
+REGRAPH_TOLERANCE_MM = 1e-4  # float32 round-off of the two graphs' different operation order is about 1e-5 mm
+
+
+def regraph(model: Path) -> tuple[float, float]:
+    """A material model folder's graph rebuilt by today's build_material_graph from its own weights (network
+    layers, basis and mean, read from model.onnx), without refitting; returns the largest |difference| (mm) of
+    displacement and of displacement_std between the old and the new graph, over the sweep's guide grid at the
+    nominal materials and at every corner of the ranges with the default std. Refused, and nothing written, when
+    either passes REGRAPH_TOLERANCE_MM. The manifest's accuracy was measured with the old graph; this bound says
+    the new one answers the same."""
+    import itertools
+
+    import onnx
+    from onnx import numpy_helper
+
+    from contracts.files import atomic_write_bytes, atomic_write_text, sha256
+    from contracts.model import onnx_session, read_model_folder
+
+    from .material_graph import build_material_graph
+    from .pca import Pca
+
+    current = read_model_folder(model)
+    info = current.manifest.materials
+    if info is None:
+        raise ValueError(f"--model: {model} takes no material inputs; only a material model's graph is rebuilt")
+    old_bytes = (Path(model) / "model.onnx").read_bytes()
+    weights = {i.name: numpy_helper.to_array(i) for i in onnx.load_from_string(old_bytes).graph.initializer}
+    layers = [(weights[f"w{i}"].astype(np.float64), weights[f"b{i}"].astype(np.float64))
+              for i in itertools.takewhile(lambda i: f"w{i}" in weights, itertools.count())]
+    stacked = weights["basis"].T.astype(np.float64)  # (rank + 1, 3 n_nodes): the basis rows, then the mean
+    pca = Pca(mean=stacked[-1], basis=stacked[:-1], singular_values=np.ones(1))
+    new_bytes = build_material_graph(layers, pca, len(info.inputs), dtype=weights["basis"].dtype.type).SerializeToString()
+
+    spec = current.manifest.scene.spec
+    sweep = spec["sweep"]
+    d = np.arange(0.0, sweep["displacement_max_mm"] + 1e-9, max(sweep["displacement_step_mm"], 1.0))
+    a = np.arange(sweep["angle_min_deg"], sweep["angle_max_deg"] + 1e-9, max(sweep["angle_step_deg"], 2.5))
+    guides = np.array([(x, y) for x in d for y in a], dtype=np.float32)
+    bounds = [np.log(np.asarray(m.youngs_kpa_range) / m.nominal_youngs_kpa) for m in info.inputs]
+    thetas = [np.zeros(len(bounds)), *map(np.array, itertools.product(*bounds))]
+    sigma = np.array([m.std_percent / 100 for m in info.inputs], dtype=np.float32)  # std(E) / E, as served
+    old, new = onnx_session(old_bytes), onnx_session(new_bytes)
+    du = dstd = 0.0
+    for theta in thetas:
+        feed = {"guide": guides, "materials": np.tile(theta.astype(np.float32), (len(guides), 1)),
+                "materials_std": np.tile(sigma, (len(guides), 1))}
+        (u0, s0), (u1, s1) = old.run(None, feed), new.run(None, feed)
+        du, dstd = max(du, float(np.abs(u1 - u0).max())), max(dstd, float(np.abs(s1 - s0).max()))
+    if max(du, dstd) > REGRAPH_TOLERANCE_MM:
+        raise ValueError(f"--model: the rebuilt graph differs from {model}'s by {du:.3g} mm (displacement) and "
+                         f"{dstd:.3g} mm (std), over {REGRAPH_TOLERANCE_MM:g} mm; not written")
+    atomic_write_bytes(Path(model) / "model.onnx", new_bytes)
+    manifest = current.manifest.model_copy(update={"files": {**current.manifest.files,
+                                                             "model.onnx": sha256(Path(model) / "model.onnx")}})
+    atomic_write_text(Path(model) / "manifest.json", manifest.model_dump_json(indent=2) + "\n")
+    return du, dstd

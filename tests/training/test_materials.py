@@ -111,3 +111,49 @@ def test_a_material_point_without_equilibrium_is_kept_counted_and_named(tiny_mat
     assert acc.n_points == 4 and len(acc.unsolved) == 2 and "line search" in acc.unsolved[0]
     assert all(np.isfinite(r.first_order_mm) and np.isfinite(r.model_mm) for r in acc.regions.values())
     assert capsys.readouterr().out.count("found no equilibrium") == 2
+
+
+def test_regraph_rebuilds_a_material_graph_from_its_own_weights(tiny_material_model, tmp_path, capsys):
+    """The graph rebuilt from the folder's own network, basis and mean answers as the old one (to float32
+    round-off, over the guide grid and the range corners), and the folder still reads with every sha256 checked."""
+    import shutil
+
+    model = tmp_path / "model"
+    shutil.copytree(tiny_material_model, model)
+    before = read_model_folder(model).manifest
+    assert main(["regraph", "--model", str(model)]) == 0
+    assert "model.onnx rebuilt" in capsys.readouterr().out
+    after = read_model_folder(model).manifest
+    assert after.model_copy(update={"files": before.files}) == before
+    m = len(after.materials.inputs)
+    g = {"guide": np.array([[4.0, 3.0]], np.float32), "materials": np.linspace(-0.2, 0.1, m, dtype=np.float32)[None],
+         "materials_std": np.linspace(0.1, 0.2, m, dtype=np.float32)[None]}
+    old, new = onnx_session(tiny_material_model / "model.onnx").run(None, g), onnx_session(model / "model.onnx").run(None, g)
+    for a, b in zip(old, new):
+        np.testing.assert_allclose(b, a, atol=1e-5)
+
+
+def test_regraph_refuses_a_graph_that_answers_differently_and_writes_nothing(tiny_material_model, tmp_path,
+                                                                              monkeypatch, capsys):
+    import shutil
+
+    from contracts.files import sha256
+    from training import material_graph
+
+    build = material_graph.build_material_graph
+
+    def off_by_a_bit(layers, pca, m, **kw):  # the mean shifted by 1 um: a builder that changed the answer
+        return build(layers, type(pca)(mean=pca.mean + 1e-3, basis=pca.basis, singular_values=pca.singular_values), m, **kw)
+
+    monkeypatch.setattr(material_graph, "build_material_graph", off_by_a_bit)
+    model = tmp_path / "model"
+    shutil.copytree(tiny_material_model, model)
+    digests = {f.name: sha256(f) for f in model.iterdir()}
+    assert main(["regraph", "--model", str(model)]) == 2
+    assert "not written" in capsys.readouterr().err
+    assert {f.name: sha256(f) for f in model.iterdir()} == digests
+
+
+def test_regraph_refuses_a_model_without_material_inputs(tiny_model, capsys):
+    assert main(["regraph", "--model", str(tiny_model)]) == 2
+    assert "takes no material inputs" in capsys.readouterr().err
