@@ -30,7 +30,7 @@ import numpy as np
 
 from contracts.model import read_manifest
 from service import loadtest
-from service.cores import Concurrency, usable_cores
+from service.cores import Concurrency, basis_bytes, usable_cores
 from service.settings import DEFAULT_MODEL
 from studies import results
 
@@ -122,7 +122,8 @@ def served(model: Path, cores: set[int], duration_s: float, *, large: bool) -> l
 
 
 def in_process(model: Path, cores: set[int]) -> dict:
-    """Pinned to `cores`: decode capacity with the default lanes and threads, and the work outside onnxruntime."""
+    """Pinned to `cores`: decode capacity with the default workers, lanes and threads (each worker's lanes as threads
+    of this process), and the work outside onnxruntime."""
     from service.model import Predictor, read_model_folder
     from service.predict import ALL_NODES, Query, finish
     from service.replies import binary_reply, json_chunks
@@ -130,7 +131,7 @@ def in_process(model: Path, cores: set[int]) -> dict:
     mine = os.sched_getaffinity(0)
     os.sched_setaffinity(0, cores)
     try:
-        c = Concurrency.for_cores(len(cores))
+        c = Concurrency.for_model(len(cores), basis_bytes(model))
         predictor = Predictor(read_model_folder(model), threads=c.threads)
         guides = np.tile([[5.0, 2.0]], (8, 1))
         solo = _median_ms(lambda: predictor.decode(guides[:1]))
@@ -141,7 +142,7 @@ def in_process(model: Path, cores: set[int]) -> dict:
         prediction = finish(predictor, query, u.copy())
         binary = _median_ms(lambda: binary_reply(prediction.positions))
         json_ms = _median_ms(lambda: json_chunks({"count": len(u)}, {"positions": prediction.positions}), n=5)
-        capacity = _capacity(predictor, guides, lanes=c.lanes)
+        capacity = _capacity(predictor, guides, lanes=c.workers * c.lanes)  # every worker's lanes, as served
     finally:
         os.sched_setaffinity(0, mine)
     return {"cores": len(cores), "defaults": c.__dict__, "decode_ms_batch_1": solo,

@@ -6,21 +6,30 @@ module is its one owner: studies.results imports it from here.
 
 The defaults (`Concurrency.for_cores`) were chosen by measurement on a 2-core machine pinned to 1
 and 2 cores (bench/service.py, docs/results/bench_service.json); above 2 cores they are a rule,
-not a measurement:
-* one worker process below 8 cores: a single process batches more (batches are what make a
-  paper-scale decode cheap: it reads the whole basis once per call, whatever the batch size);
-  from 8 cores one worker per 4 cores, so HTTP and serialisation (one event loop a process) scale.
-* two batch executors (lanes) from 2 cores on, so one batch decodes while the last one's replies are
-  written; onnxruntime intra-op threads share the rest of a worker's cores between its lanes.
+not a measurement. They depend on the model's basis (`Concurrency.for_model`):
+* a large basis (over `CACHED_BASIS_BYTES`, streamed from memory on every decode): one worker
+  process below 8 cores, since a single process batches more (a paper-scale decode reads its whole
+  basis once per call, whatever the batch size), and two batch executors (lanes) from 2 cores on,
+  so one batch decodes while the last one's replies are written. 2 cores, 312k nodes, 8 clients:
+  225 req/s against 190 with two workers of one lane.
+* a basis that stays in cache: a decode costs little per request whatever the batching, and one
+  event loop's HTTP is the bottleneck, so one worker per core below 8 cores, each with one lane.
+  2 cores, 10k nodes, 8 clients: 1,458 req/s against 990 with one worker of two lanes.
+* from 8 cores, one worker per 4 cores for either, so HTTP and serialisation scale; onnxruntime
+  intra-op threads share the rest of a worker's cores between its lanes.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 CGROUP_CPU_MAX = Path("/sys/fs/cgroup/cpu.max")
+# a basis (float32, 3 n_nodes x (rank + 1)) up to this size is decoded from cache; above it, from memory. 32 MB: the
+# L3 of a current server core complex; models/default's is 12 MB, the paper-scale decoder's 154 MB
+CACHED_BASIS_BYTES = 32 << 20
 
 
 def usable_cores(*, affinity: set[int] | None = None, cpu_max: Path | None = None) -> int:
@@ -49,13 +58,30 @@ class Concurrency:
     threads: int
 
     @classmethod
-    def for_cores(cls, cores: int) -> Concurrency:
-        workers = 1 if cores < 8 else cores // 4
+    def for_cores(cls, cores: int, *, cached_basis: bool = False) -> Concurrency:
+        if cores >= 8:
+            workers = cores // 4
+        else:
+            workers = cores if cached_basis else 1
         per_worker = max(1, cores // workers)
         lanes = min(2, per_worker)
         return cls(workers=workers, lanes=lanes, threads=max(1, per_worker // lanes))
 
+    @classmethod
+    def for_model(cls, cores: int, basis_bytes: int | None) -> Concurrency:
+        """The defaults for a model whose basis takes `basis_bytes` (None: unknown, taken as large)."""
+        return cls.for_cores(cores, cached_basis=basis_bytes is not None and basis_bytes <= CACHED_BASIS_BYTES)
 
-def defaults() -> Concurrency:
-    """The service's defaults for the cores this process may use."""
-    return Concurrency.for_cores(usable_cores())
+
+def basis_bytes(model: Path) -> int | None:
+    """The float32 basis of a model folder from its manifest (3 n_nodes x (rank + 1) x 4 bytes); None if unreadable."""
+    try:
+        manifest = json.loads((Path(model) / "manifest.json").read_text())
+        return 3 * int(manifest["mesh"]["n_nodes"]) * (int(manifest["pca"]["rank"]) + 1) * 4
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def defaults(model: Path | None = None) -> Concurrency:
+    """The service's defaults for the cores this process may use and the model it serves."""
+    return Concurrency.for_model(usable_cores(), basis_bytes(model) if model is not None else None)

@@ -205,3 +205,35 @@ def test_a_batch_waits_only_for_the_next_preferred_size():
         return results
 
     assert asyncio.run(scenario()) == [0, 1] and calls == [[0, 1]]
+
+
+def test_the_delay_counts_from_the_free_lane_not_from_the_first_arrival():
+    """A request that waited through the last batch still waits (up to the delay) for company once its lane is
+    free, so the clients whose replies were just sent join it: 0 waits through a 0.35 s batch of two, 1 arrives
+    0.1 s after that batch ends, and with a 0.2 s delay both decode together (counted from 0's arrival, the delay
+    would be over before the lane was free, and 1 would run alone)."""
+    calls, release = [], threading.Event()
+
+    def run_batch(items):
+        calls.append(list(items))
+        if items[0] == "first":
+            release.wait(5)
+        return items
+
+    async def scenario():
+        batcher = Batcher(run_batch, max_batch=8, max_delay_s=0.2, max_queue=16)
+        batcher._run_s = 1e3  # the cap (a quarter of the recent run time) is far
+        batcher.start()
+        busy = [asyncio.create_task(batcher.submit(x)) for x in ("first", "second")]  # queued together: one batch
+        await asyncio.sleep(0.05)
+        early = asyncio.create_task(batcher.submit(0))  # waits while "first" runs
+        await asyncio.sleep(0.3)
+        await asyncio.get_running_loop().run_in_executor(None, release.set)
+        await asyncio.sleep(0.1)
+        late = asyncio.create_task(batcher.submit(1))
+        results = await asyncio.wait_for(asyncio.gather(*busy, early, late), 10)
+        await batcher.stop()
+        return results
+
+    assert asyncio.run(scenario()) == ["first", "second", 0, 1]
+    assert calls == [["first", "second"], [0, 1]]

@@ -29,6 +29,37 @@ def test_workers_lanes_and_threads_never_ask_for_more_cores_than_there_are(cores
     assert c.workers * c.lanes * c.threads <= cores
 
 
+@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1)), (2, (2, 1, 1)), (4, (4, 1, 1)), (8, (2, 2, 2))])
+def test_a_model_decoded_from_cache_gets_a_worker_per_core_below_8(cores, expected):
+    """A basis that stays in cache (models/default's 12 MB) makes HTTP the bottleneck: a worker per core; a large one
+    (the paper-scale decoder's 154 MB) keeps one batching worker; an unknown size counts as large."""
+    from service.cores import CACHED_BASIS_BYTES
+
+    small, large = Concurrency.for_model(cores, 12 << 20), Concurrency.for_model(cores, 154 << 20)
+    assert (small.workers, small.lanes, small.threads) == expected
+    assert large == Concurrency.for_cores(cores) == Concurrency.for_model(cores, None)
+    assert Concurrency.for_model(cores, CACHED_BASIS_BYTES + 1) == large
+    assert small.workers * small.lanes * small.threads <= cores
+
+
+def test_the_settings_size_the_service_for_the_model_it_serves(monkeypatch, tmp_path):
+    import json
+
+    from service import cores
+    from service.settings import DEFAULT_MODEL, Settings
+
+    monkeypatch.setattr(cores.os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(cores, "CGROUP_CPU_MAX", tmp_path / "missing")
+    manifest = json.loads((DEFAULT_MODEL / "manifest.json").read_text())
+    assert cores.basis_bytes(DEFAULT_MODEL) == 3 * manifest["mesh"]["n_nodes"] * (manifest["pca"]["rank"] + 1) * 4
+    assert (Settings().workers, Settings().batch_lanes) == (2, 1)  # models/default: 12 MB
+    big = tmp_path / "big"
+    big.mkdir()
+    manifest["mesh"]["n_nodes"] = 312_089
+    (big / "manifest.json").write_text(json.dumps(manifest))
+    assert (Settings(model=big).workers, Settings(model=big).batch_lanes) == (1, 2)
+
+
 def test_the_settings_default_from_the_usable_cores_not_the_host(monkeypatch, tmp_path):
     """16 cores in the affinity but a 2-core quota: the service sizes itself for 2."""
     from service import cores
@@ -38,5 +69,5 @@ def test_the_settings_default_from_the_usable_cores_not_the_host(monkeypatch, tm
     monkeypatch.setattr(cores, "CGROUP_CPU_MAX", tmp_path / "cpu.max")
     monkeypatch.setattr(cores.os, "sched_getaffinity", lambda pid: set(range(16)))
     s = Settings()
-    assert (s.workers, s.batch_lanes, s.threads) == (1, 2, 1)
+    assert (s.workers, s.batch_lanes, s.threads) == (2, 1, 1)  # models/default decodes from cache: a worker per core
     assert Settings(workers=3, threads=2).workers == 3  # a flag still wins

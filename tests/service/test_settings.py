@@ -62,4 +62,3 @@ def test_locked_down_parts_are_off_by_default():
 
     s = Settings()
     assert (s.tokens(), s.rate_limit, s.cors_origins, s.ssl_certfile) == (frozenset(), 0.0, [], None)
-    assert s.batch_max_delay_ms <= 1.0
