@@ -21,15 +21,16 @@ def test_no_cgroup_file_leaves_the_affinity(tmp_path):
     assert usable_cores(affinity={1}, cpu_max=tmp_path / "missing") == 1
 
 
-@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1)), (2, (1, 2, 1)), (4, (1, 2, 2)), (8, (2, 2, 2)),
-                                             (16, (4, 2, 2))])
-def test_workers_lanes_and_threads_never_ask_for_more_cores_than_there_are(cores, expected):
+@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1)), (2, (1, 2, 2)), (4, (1, 2, 4)), (8, (2, 2, 4)),
+                                             (16, (4, 2, 4))])
+def test_a_streamed_basis_gets_one_batching_worker_whose_lanes_may_each_use_all_its_cores(cores, expected):
     c = Concurrency.for_cores(cores)
     assert (c.workers, c.lanes, c.threads) == expected
-    assert c.workers * c.lanes * c.threads <= cores
+    assert c.workers * c.threads <= cores  # each lane's threads fit the cores; two lanes share them
 
 
-@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1)), (2, (2, 1, 1)), (4, (4, 1, 1)), (8, (2, 2, 2))])
+@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1)), (2, (2, 1, 1)), (4, (4, 1, 1)), (8, (2, 2, 2)),
+                                             (16, (4, 2, 2))])
 def test_a_model_decoded_from_cache_gets_a_worker_per_core_below_8(cores, expected):
     """A basis that stays in cache (models/default's 12 MB) makes HTTP the bottleneck: a worker per core; a large one
     (the paper-scale decoder's 154 MB) keeps one batching worker; an unknown size counts as large."""
@@ -57,7 +58,7 @@ def test_the_settings_size_the_service_for_the_model_it_serves(monkeypatch, tmp_
     big.mkdir()
     manifest["mesh"]["n_nodes"] = 312_089
     (big / "manifest.json").write_text(json.dumps(manifest))
-    assert (Settings(model=big).workers, Settings(model=big).batch_lanes) == (1, 2)
+    assert (Settings(model=big).workers, Settings(model=big).batch_lanes, Settings(model=big).threads) == (1, 2, 2)
 
 
 def test_the_settings_default_from_the_usable_cores_not_the_host(monkeypatch, tmp_path):
