@@ -1,6 +1,6 @@
 """Service throughput and latency, batching off and on, with the service pinned to 1 and to all usable cores.
 
-    python -m bench service [--duration 3] [--model models/default --model runs/paper_decoder/model] [--publish]
+    python -m bench service [--duration 3] [--repeats 3] [--model models/default --model runs/paper_decoder/model] [--publish]
 
 For each core set (the service pinned with taskset; on more than one core the clients, this
 process's threads, are pinned to the other cores where there are any, else share them), each
@@ -105,20 +105,40 @@ def client_cores(service: set[int]) -> set[int]:
     return others or service
 
 
-def served(model: Path, cores: set[int], duration_s: float, *, large: bool) -> list[dict]:
-    rows, mine = [], os.sched_getaffinity(0)
+def served(model: Path, cores: set[int], duration_s: float, *, large: bool, repeats: int = 1) -> list[dict]:
+    """Each configuration and scenario `repeats` times, the configurations taking turns (so a slow spell of a shared
+    machine falls on all of them), reduced to one row each by `median_row`."""
+    runs, mine = {}, os.sched_getaffinity(0)
     os.sched_setaffinity(0, client_cores(cores))
     try:
-        for config, flags in configs(len(cores)):
-            with loadtest.local_service("--model", str(model), *flags, "--access-log", "off", wait_s=180,
-                                        cpus=cores) as url:
-                for scenario in (LARGE if large else SMALL):
-                    row = run_scenario(url, scenario, duration_s, large=large)
-                    rows.append({"cores": len(cores), "config": config, **row})
-                    print_row(rows[-1])
+        for _ in range(repeats):
+            for config, flags in configs(len(cores)):
+                with loadtest.local_service("--model", str(model), *flags, "--access-log", "off", wait_s=180,
+                                            cpus=cores) as url:
+                    for scenario in (LARGE if large else SMALL):
+                        row = {"cores": len(cores), "config": config, **run_scenario(url, scenario, duration_s, large=large)}
+                        runs.setdefault((config, scenario[0]), []).append(row)
+                        if repeats > 1:
+                            print_row(row, prefix="run ")
     finally:
         os.sched_setaffinity(0, mine)
+    rows = [median_row(r) for r in runs.values()]
+    for row in rows:
+        print_row(row)
     return rows
+
+
+def median_row(runs: list[dict]) -> dict:
+    """One row from repeated runs of a configuration and scenario: the median of each figure, the requests and
+    errors summed, the runs' throughputs kept."""
+    row = dict(runs[0])
+    for key, value in runs[0].items():
+        if isinstance(value, float) or key == "mean_batch":
+            values = [r[key] for r in runs if r.get(key) is not None]
+            row[key] = float(np.median(values)) if values else None
+    row["requests"], row["errors"] = sum(r["requests"] for r in runs), sum(r["errors"] for r in runs)
+    row["repeats"], row["throughput_runs_rps"] = len(runs), [r["throughput_rps"] for r in runs]
+    return row
 
 
 def in_process(model: Path, cores: set[int]) -> dict:
@@ -178,11 +198,24 @@ def _capacity(predictor, guides: np.ndarray, *, lanes: int, seconds: float = 1.5
     return sum(done) / (time.perf_counter() - t0)
 
 
-def print_row(r: dict) -> None:
+def print_row(r: dict, prefix: str = "") -> None:
     mean = f"{r['mean_batch']:.1f}" if r.get("mean_batch") else ""
     health = f"{r['healthz_p99_ms']:.1f}" if "healthz_p99_ms" in r else ""
-    print(f"| {r['cores']} | {r['config']} | {r['scenario']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
+    print(f"{prefix}| {r['cores']} | {r['config']} | {r['scenario']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
           f"{r['throughput_rps']:.0f} | {r['errors']} | {mean} | {health} |", flush=True)
+
+
+def versions() -> dict[str, str]:
+    """The versions of what serves: Python and the service's packages."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": sys.version.split()[0]}
+    for name in ("onnxruntime", "numpy", "uvicorn", "uvloop", "httptools", "fastapi", "starlette", "orjson"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -190,12 +223,18 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, action="append",
                     help=f"a model folder (repeat); default {DEFAULT_MODEL.name} and {paper_decoder.PAPER_DECODER}")
-    ap.add_argument("--duration", type=float, default=3.0, help="seconds per row")
+    ap.add_argument("--duration", type=float, default=3.0, help="seconds per run of a row")
+    ap.add_argument("--repeats", type=int, default=3, help="runs of each row, the configurations taking turns; "
+                    "the row is their median (default 3)")
     results.add_publish_flag(ap)
     args = ap.parse_args(argv)
     models = args.model or [DEFAULT_MODEL, paper_decoder.ensure()]
-    print(f"{usable_cores()} usable cores; load average {os.getloadavg()[0]:.2f}; {args.duration:g} s per row")
-    data = {"duration_s": args.duration, "load_at_start": os.getloadavg()[0], "models": {}}
+    if args.repeats < 1:
+        ap.error("--repeats: at least 1")
+    print(f"{usable_cores()} usable cores; load average {os.getloadavg()[0]:.2f}; {args.duration:g} s per run, "
+          f"the median of {args.repeats} run(s) per row")
+    data = {"duration_s": args.duration, "repeats": args.repeats, "load_at_start": os.getloadavg()[0],
+            "versions": versions(), "models": {}}
     for model in models:
         n_nodes = read_manifest(model).mesh.n_nodes
         large = n_nodes >= LARGE_NODES
@@ -204,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
               "| mean batch | /healthz p99 ms |\n|---|---|---|---|---|---|---|---|---|")
         for cores in core_sets():
             entry["in_process"].append(in_process(model, cores))
-            entry["rows"] += served(model, cores, args.duration, large=large)
+            entry["rows"] += served(model, cores, args.duration, large=large, repeats=args.repeats)
         for p in entry["in_process"]:
             print(f"in process, {p['cores']} core(s): decode {p['decode_ms_batch_1']:.3f} ms alone; capacity "
                   f"{p['decode_capacity_rps']:.0f} req/s; outside onnxruntime: reference positions "

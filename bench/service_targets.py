@@ -40,7 +40,7 @@ def targets(data: dict) -> list[dict]:
             share = row["throughput_rps"] / p["decode_capacity_rps"]
             out.append(_target(f"{large['n_nodes']} nodes, 8 clients, {p['cores']} core(s): served >= 50% of the "
                                "in-process decode capacity", round(share, 2), share >= 0.5))
-        per_request = 1e3 * p["defaults"]["lanes"] / p["decode_capacity_rps"]
+        per_request = 1e3 * p["defaults"].get("workers", 1) * p["defaults"]["lanes"] / p["decode_capacity_rps"]
         outside = p["reference_positions_ms"] + p["binary_reply_ms"]
         out.append(_target(f"{large['n_nodes']} nodes, {p['cores']} core(s): work outside onnxruntime (reference "
                            f"positions + binary reply, ms) below the batched decode per request ({per_request:.2f} ms)",

@@ -143,6 +143,22 @@ def speed_table(folder: Path = DOCS_RESULTS) -> str:
                       "bench_service.json by* `python -m studies readme`; *measured by*", 1)])
 
 
+def service_targets_table(folder: Path = DOCS_RESULTS) -> str:
+    """The service benchmark's targets (met or not), how many runs each row's median took, and the versions it
+    ran with (docs/results/bench_service.json)."""
+    result = load(BENCH_SERVICE, folder)
+    if result is None or not result.get("targets"):
+        return "*The service benchmark has no committed targets yet.*"
+    rows = ["| target | measured | met |", "|---|---|---|"]
+    rows += [f"| {t['target']} | {t['value']} | {'yes' if t['met'] else '**no**'} |" for t in result["targets"]]
+    versions = ", ".join(f"{k} {v}" for k, v in result.get("versions", {}).items()) or "not recorded"
+    load_ = f"load {result.get('load_at_start', '?'):.2f} at the start, {result.get('load_at_end', '?'):.2f} at the end" \
+        if isinstance(result.get("load_at_start"), float) and isinstance(result.get("load_at_end"), float) else "load not recorded"
+    runs = result.get("repeats", 1)
+    return "\n".join([*rows, "", f"Each row is the median of {runs} run(s) of {result.get('duration_s', '?')} s, the "
+                      f"configurations taking turns; {load_}. Versions: {versions}.", "", provenance_line(result)])
+
+
 # --- the README's generated blocks ---------------------------------------------------------------
 
 BLOCKS = {"accuracy": accuracy_table, "speed": speed_table}
@@ -277,8 +293,9 @@ def material_check_table(manifest_path: Path = MANIFEST) -> str:
 
 def render_page(text: str, folder: Path = DOCS_RESULTS) -> str:
     """A page with each `{{ result NAME }}` replaced by that result's block, and `{{ accuracy }}`, `{{ speed }}`,
-    `{{ material_check }}`."""
+    `{{ material_check }}`, `{{ service_targets }}`."""
     text = re.sub(r"\{\{\s*result\s+\"?(\w+)\"?\s*\}\}", lambda m: result_block(m.group(1), folder), text)
     text = re.sub(r"\{\{\s*accuracy\s*\}\}", lambda m: accuracy_table(), text)
     text = re.sub(r"\{\{\s*material_check\s*\}\}", lambda m: material_check_table(), text)
+    text = re.sub(r"\{\{\s*service_targets\s*\}\}", lambda m: service_targets_table(folder), text)
     return re.sub(r"\{\{\s*speed\s*\}\}", lambda m: speed_table(folder), text)

@@ -41,3 +41,14 @@ def test_readme_rows_have_the_fields_the_readme_table_reads():
     assert all(set(r) == {"what", "p50_ms", "p99_ms", "req_s"} for r in rows)
     off = next(r for r in rows if "batching off" in r["what"])
     assert off["req_s"] == 150  # the best unbatched configuration
+
+
+def test_a_repeated_row_is_the_median_of_its_runs():
+    from bench.service import median_row
+
+    runs = [_row(2, "on", "full binary 8", rps, p99, requests=100, errors=e, mean_batch=b)
+            for rps, p99, e, b in [(200.0, 50.0, 0, 7.0), (260.0, 40.0, 1, 6.0), (240.0, 45.0, 0, None)]]
+    row = median_row(runs)
+    assert (row["throughput_rps"], row["p99_ms"], row["p50_ms"]) == (240.0, 45.0, 22.5)
+    assert (row["requests"], row["errors"], row["repeats"], row["mean_batch"]) == (300, 1, 3, 6.5)
+    assert row["throughput_runs_rps"] == [200.0, 260.0, 240.0] and row["config"] == "on"
