@@ -59,3 +59,42 @@ def test_healthz_answers_while_a_large_json_reply_is_written():
     got = orjson.loads(reply.content)
     assert int(reply.headers["content-length"]) == len(reply.content)
     np.testing.assert_array_equal(np.asarray(got["positions"], dtype=np.float32), positions)
+
+
+def test_at_most_two_large_arrays_are_serialised_at_once(monkeypatch):
+    """Eight large JSON replies at once: each waits for one of the two writers, so the event loop competes for the
+    GIL with two threads, not eight; every reply is still orjson's own text."""
+    import threading
+    import time
+
+    from service import replies
+
+    lock, active, peak, real = threading.Lock(), [0], [0], replies.orjson.dumps
+
+    class Counting:
+        OPT_SERIALIZE_NUMPY = orjson.OPT_SERIALIZE_NUMPY
+
+        @staticmethod
+        def dumps(value, option=None):
+            with lock:
+                active[0] += 1
+                peak[0] = max(peak[0], active[0])
+            time.sleep(0.005)
+            with lock:
+                active[0] -= 1
+            return real(value, option=option)
+
+    monkeypatch.setattr(replies, "orjson", Counting)
+    array = np.arange(3 * replies.CHUNK_ROWS * 3, dtype=np.float32).reshape(-1, 3)
+    out = [None] * 8
+
+    def write(i):
+        out[i] = b"".join(array_chunks(array))
+
+    threads = [threading.Thread(target=write, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert peak[0] == 2
+    assert all(o == real(array, option=orjson.OPT_SERIALIZE_NUMPY) for o in out)
