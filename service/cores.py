@@ -12,7 +12,8 @@ not a measurement. They depend on the model's basis (`Concurrency.for_model`):
   basis once per call, whatever the batch size), and two batch executors (lanes) from 2 cores on,
   so one batch decodes while the last one's replies are written, each lane with onnxruntime threads
   for all the worker's cores (the lanes share them when both run). 2 cores, 312k nodes, 8 clients:
-  225 req/s against 190 with two workers of one lane; 274 against 223 with one thread a lane.
+  225 req/s against 190 with two workers of one lane; with idle onnxruntime threads sleeping rather
+  than spinning (contracts.model.onnx_session), 310 against 217 with one thread a lane (medians of 3).
 * a basis that stays in cache: a decode costs little per request whatever the batching, and one
   event loop's HTTP is the bottleneck, so one worker per core below 8 cores, each with one lane.
   2 cores, 10k nodes, 8 clients: 1,458 req/s against 990 with one worker of two lanes.

@@ -20,7 +20,7 @@ points, and total_mm = the three bounds + 2 x that std.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Optional
+from typing import Annotated, ClassVar, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
@@ -32,20 +32,28 @@ NO_MATERIALS = "this model takes no material inputs"
 STD_SIGMAS = 2.0  # total_mm counts the material uncertainty at 2 std
 
 
+def _given(*names: str) -> dict:
+    """The JSON schema of an object in which each of `names` is present and not null."""
+    return {"required": list(names), "properties": {name: {"type": "number"} for name in names}}
+
+
 class TissueValueBase(BaseModel):
     """One tissue's stiffness in a request: E or a shear-wave speed, with an optional uncertainty."""
 
-    # the rules of _one_each, in the schema too (as region and points in schemas.py)
+    # the rules of _one_each, in the schema too (as region and points in schemas.py); a field is given when
+    # it is present and not null, as the validator reads it
     model_config = ConfigDict(extra="forbid", json_schema_extra={"allOf": [
-        {"not": {"required": ["youngs_kpa", "shear_wave_speed_m_s"]}},
-        {"not": {"required": ["std_percent", "std"]}},
-        {"if": {"required": ["std"]}, "then": {"anyOf": [{"required": ["youngs_kpa"]},
-                                                         {"required": ["shear_wave_speed_m_s"]}]}}]})
+        {"not": _given("youngs_kpa", "shear_wave_speed_m_s")},
+        {"not": _given("std_percent", "std")},
+        {"if": _given("std"), "then": {"anyOf": [_given("youngs_kpa"), _given("shear_wave_speed_m_s")]}}]})
 
     youngs_kpa: Optional[float] = None
     shear_wave_speed_m_s: Optional[float] = None
     std_percent: Optional[float] = None
     std: Optional[float] = None
+    # the most `std` may be, given with E (kPa) or with v_s (m/s): the upper end of that value's range, so sigma
+    # stays finite (a std of 1e308 gave infinite std_mm); _tissue_model sets it and says it in the schema
+    std_max: ClassVar[tuple[float, float]] = (math.inf, math.inf)
 
     @model_validator(mode="after")
     def _one_each(self):
@@ -55,6 +63,10 @@ class TissueValueBase(BaseModel):
             raise ValueError("give std_percent or std, not both")
         if self.std is not None and self.youngs_kpa is None and self.shear_wave_speed_m_s is None:
             raise ValueError("std is in the unit of youngs_kpa or shear_wave_speed_m_s: give one of them")
+        if self.std is not None:
+            most, unit = (self.std_max[0], "kPa") if self.youngs_kpa is not None else (self.std_max[1], "m/s")
+            if self.std > most:
+                raise ValueError(f"std {self.std:g} {unit} is over {most:g} {unit}, the upper end of the value's range")
         return self
 
 
@@ -65,8 +77,13 @@ def _number(lo: float, hi: float, what: str):
 def _tissue_model(m: MaterialInput) -> type[TissueValueBase]:
     (e_lo, e_hi), (v_lo, v_hi) = m.youngs_kpa_range, m.shear_wave_range_m_s
     v_lo, v_hi = math.floor(v_lo * 1e4) / 1e4, math.ceil(v_hi * 1e4) / 1e4  # the E range's ends stay inside
+    # std's bound in the schema as well: each `if` names the unit the std is in
+    bounds = {"std_max": (e_hi, v_hi), "model_config": ConfigDict(extra="forbid", json_schema_extra={"allOf": [
+        *TissueValueBase.model_config["json_schema_extra"]["allOf"],
+        {"if": _given("youngs_kpa"), "then": {"properties": {"std": {"maximum": e_hi}}}},
+        {"if": _given("shear_wave_speed_m_s"), "then": {"properties": {"std": {"maximum": v_hi}}}}]})}
     return create_model(
-        f"Material_{m.tissue}", __base__=TissueValueBase,
+        f"Material_{m.tissue}", __base__=type(f"TissueValue_{m.tissue}", (TissueValueBase,), bounds),
         youngs_kpa=(_number(e_lo, e_hi, f"Young's modulus, {e_lo:g}..{e_hi:g} kPa (nominal {m.nominal_youngs_kpa:g})"), None),
         shear_wave_speed_m_s=(_number(v_lo, v_hi, f"shear-wave speed, {v_lo:g}..{v_hi:g} m/s (eq. 1)"), None),
         std_percent=(Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, ge=0, le=100,

@@ -5,6 +5,7 @@ refuses the field."""
 import math
 from pathlib import Path
 
+import jsonschema_rs  # schemathesis's validator
 import numpy as np
 import pytest
 
@@ -82,6 +83,27 @@ def test_a_material_outside_its_range_is_refused_naming_the_field(mat_client, ma
     reply = _post(mat_client, materials=materials)
     assert reply.status_code == 422, reply.text
     assert reply.json()["detail"][0]["field"] == field
+
+
+@pytest.mark.parametrize("tissue, valid", [
+    ({"youngs_kpa": 70.0, "std": 5.0}, True),
+    ({"youngs_kpa": 70.0, "shear_wave_speed_m_s": None, "std": 5.0}, True),  # null is not given
+    ({"shear_wave_speed_m_s": None, "std": 5.0}, False),  # std with no value to be in the unit of
+    ({"std": 5.0}, False),
+    ({"youngs_kpa": 70.0, "shear_wave_speed_m_s": 4.5}, False),
+    ({"std_percent": 10.0, "std": None}, True),
+    ({"youngs_kpa": 70.0, "std": 85.0}, True),  # the tiny scene's prostate: 50..85 kPa
+    ({"youngs_kpa": 70.0, "std": 85.5}, False),  # a std over the range's upper end (1e308 gave inf std_mm)
+    ({"shear_wave_speed_m_s": 4.5, "std": 85.0}, False),  # ... in m/s when the value is a speed
+])
+def test_the_schema_and_the_service_agree_on_which_tissue_values_are_given(mat_client, tissue, valid):
+    """The OpenAPI schema says what the validator does, null fields included (a client generated from the
+    schema must not send what the service refuses)."""
+    schema = mat_client.get("/openapi.json").json()
+    prostate = schema["components"]["schemas"]["Material_prostate"]
+    assert jsonschema_rs.validator_for(prostate).is_valid(tissue) is valid
+    reply = _post(mat_client, region="markers", materials={"prostate": tissue})
+    assert (reply.status_code == 200) is valid, reply.text
 
 
 def test_a_model_without_material_inputs_refuses_materials(tiny_client):
