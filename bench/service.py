@@ -9,7 +9,9 @@ core, on with the defaults), starts `python -m service` on a free loopback port 
 service/loadtest.py for each scenario. The paper-scale decoder (bench/paper_decoder.py) is built
 into runs/ first when missing. Beside the served figures it measures, pinned to the same cores:
 the in-process decode capacity (onnxruntime, batches of 8, the default lanes and threads) and the
-per-request work outside onnxruntime (reference positions, reply bodies), alone. With a 312k-node
+per-request work outside onnxruntime (reference positions, reply bodies), alone; and in every row the CPU
+that the service's processes (user and system, from /proc) and the clients spent per request, so the gap
+between served and in-process figures is accounted for (bench/service_targets.py's cpu_rows). With a 312k-node
 JSON load it polls /healthz from another process (the event loop must stay free). Prints the tables and the issue #35
 targets; writes everything, with the machine it ran on, through studies.results.
 """
@@ -42,6 +44,8 @@ SMALL = [("markers binary 1", "markers", "binary", 1), ("full binary 1", None, "
 LARGE = [("full binary 1", None, "binary", 1), ("full binary 8", None, "binary", 8),
          ("full json 8", None, "json", 8)]
 LARGE_NODES = 100_000
+# CPU ms per request of a row's timed part (run_scenario): the service's processes, then the clients
+CPU_FIELDS = ("service_user_ms", "service_sys_ms", "client_user_ms", "client_sys_ms")
 
 
 def core_sets() -> list[set[int]]:
@@ -87,14 +91,29 @@ def health_poller(url: str):
         out.extend(json.loads(text.strip().splitlines()[-1]) if text.strip() else [])
 
 
-def run_scenario(url: str, scenario, duration_s: float, *, large: bool) -> dict:
+def run_scenario(url: str, scenario, duration_s: float, *, large: bool, pid: int | None = None) -> dict:
+    """One load run; with the service's `pid`, also the CPU that the service (every worker) and the clients (this
+    process's threads) spent per request in its timed part."""
     name, region, fmt, clients = scenario
-    before = loadtest.batch_counts(url)
+    before, cpu = loadtest.batch_counts(url), {}
+
+    def read_cpu(at: str) -> None:
+        service = loadtest.cpu_seconds(pid) if pid is not None else None
+        if service is not None:
+            mine = os.times()
+            cpu[at] = (*service, mine.user, mine.system)
+
     with health_poller(url) if large and fmt == "json" else nullcontext([]) as health:
-        s = loadtest.run(url, concurrency=clients, duration_s=duration_s, fmt=fmt, region=region, warmup=5).summary()
+        result = loadtest.run(url, concurrency=clients, duration_s=duration_s, fmt=fmt, region=region, warmup=5,
+                              on_start=lambda: read_cpu("start"))
+        read_cpu("end")
+    s = result.summary()
     batches, requests = np.subtract(loadtest.batch_counts(url), before)
     row = {"scenario": name, "region": region or "full", "format": fmt, "clients": clients, **s,
            "mean_batch": requests / batches if batches else None}
+    if len(cpu) == 2 and s["requests"]:
+        spent = np.subtract(cpu["end"], cpu["start"]) * 1e3 / s["requests"]
+        row.update(zip(CPU_FIELDS, map(float, spent)))
     if health:
         row["healthz_p99_ms"], row["healthz_polls"] = float(np.percentile(health, 99)), len(health)
     return row
@@ -109,14 +128,16 @@ def served(model: Path, cores: set[int], duration_s: float, *, large: bool, repe
     """Each configuration and scenario `repeats` times, the configurations taking turns (so a slow spell of a shared
     machine falls on all of them), reduced to one row each by `median_row`."""
     runs, mine = {}, os.sched_getaffinity(0)
+    share = not (mine - cores)  # the clients run on the service's cores
     os.sched_setaffinity(0, client_cores(cores))
     try:
         for _ in range(repeats):
             for config, flags in configs(len(cores)):
-                with loadtest.local_service("--model", str(model), *flags, "--access-log", "off", wait_s=180,
-                                            cpus=cores) as url:
+                with loadtest.local_service_process("--model", str(model), *flags, "--access-log", "off", wait_s=180,
+                                                    cpus=cores) as (url, server):
                     for scenario in (LARGE if large else SMALL):
-                        row = {"cores": len(cores), "config": config, **run_scenario(url, scenario, duration_s, large=large)}
+                        row = {"cores": len(cores), "config": config, "clients_share_cores": share,
+                               **run_scenario(url, scenario, duration_s, large=large, pid=server.pid)}
                         runs.setdefault((config, scenario[0]), []).append(row)
                         if repeats > 1:
                             print_row(row, prefix="run ")
@@ -251,10 +272,15 @@ def main(argv: list[str] | None = None) -> int:
                   f"JSON reply {p['json_reply_ms']:.2f} ms")
         data["models"][str(model)] = entry
     data["load_at_end"] = os.getloadavg()[0]
-    from .service_targets import readme_rows, targets
+    from .service_targets import cpu_rows, readme_rows, targets
 
-    data["targets"], data["readme_rows"] = targets(data), readme_rows(data)
+    data["targets"], data["cpu"], data["readme_rows"] = targets(data), cpu_rows(data), readme_rows(data)
     print()
+    for c in data["cpu"]:
+        print(f"{c['cores']} core(s), the large model batched, CPU ms a request: decode alone {c['decode_ms']}, service "
+              f"{c['service_user_ms']} user + {c['service_sys_ms']} sys, clients {c['client_ms']}"
+              f"{' (on the same cores)' if c['clients_share_cores'] else ''}; bound {c['bound_rps']:.0f} req/s, "
+              f"served {c['served_rps']:.0f} ({c['busy']:.0%} busy)")
     for t in data["targets"]:
         print(f"target: {t['target']}: {t['value']} -> {'met' if t['met'] else 'NOT met'}")
     print(f"\nwrote {results.write('bench_service', data, publish=args.publish)}")

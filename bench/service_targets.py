@@ -1,4 +1,5 @@
-"""Issue #35's targets and the README's speed rows, from bench/service.py's measurements."""
+"""Issue #35's targets, where a large request's CPU goes, and the README's speed rows, from bench/service.py's
+measurements."""
 
 from __future__ import annotations
 
@@ -63,6 +64,32 @@ def targets(data: dict) -> list[dict]:
                            "(worst configuration)", round(worst, 1), worst <= 50))
     out.append(_target(">= 8 cores: batching on >= 1.5x the best batching-off config", "not measured (no such machine)",
                        False))
+    return out
+
+
+def cpu_rows(data: dict) -> list[dict]:
+    """Per core set, where the large model's batched requests (8 clients, full binary) spend CPU, in core-ms per
+    request: the decode alone (in process), the service's processes and the clients (bench/service.py's CPU
+    fields). `bound_rps` is what the service would serve if every core it has (and the clients have, where they
+    share them) were busy at that cost; `busy` the served share of that bound. So served / capacity =
+    decode / (service + clients on the same cores) x busy: the first factor is the work besides the decode, the
+    second the time the cores wait."""
+    _, large = _models(data)
+    out = []
+    for p in large["in_process"]:
+        row = _row(large, p["cores"], "on", "full binary 8")
+        if not row or row.get("service_user_ms") is None:
+            continue
+        service = row["service_user_ms"] + row["service_sys_ms"]
+        clients = row["client_user_ms"] + row["client_sys_ms"]
+        on_cores = service + (clients if row.get("clients_share_cores") else 0.0)
+        bound = 1e3 * p["cores"] / on_cores
+        out.append({"cores": p["cores"], "decode_ms": round(1e3 * p["cores"] / p["decode_capacity_rps"], 2),
+                    "service_user_ms": round(row["service_user_ms"], 2), "service_sys_ms": round(row["service_sys_ms"], 2),
+                    "client_ms": round(clients, 2), "clients_share_cores": bool(row.get("clients_share_cores")),
+                    "bound_rps": round(bound, 1), "served_rps": round(row["throughput_rps"], 1),
+                    "busy": round(row["throughput_rps"] / bound, 2),
+                    "served_share": round(row["throughput_rps"] / p["decode_capacity_rps"], 2)})
     return out
 
 

@@ -24,6 +24,7 @@ import urllib.request
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 from urllib.parse import urlparse
 
 import numpy as np
@@ -73,6 +74,13 @@ def local_service(*flags: str, cwd: Path | None = None, wait_s: float = 30.0, cp
     """Run `python -m service *flags` on a free loopback port for the block; yield its URL once /readyz answers.
 
     `cpus`: pin the service (every worker) to these cores, as `taskset` does."""
+    with local_service_process(*flags, cwd=cwd, wait_s=wait_s, cpus=cpus) as (url, _):
+        yield url
+
+
+@contextmanager
+def local_service_process(*flags: str, cwd: Path | None = None, wait_s: float = 30.0, cpus: set[int] | None = None):
+    """As `local_service`, yielding (URL, the service's process): its pid is the one `cpu_seconds` reads."""
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     pin = ["taskset", "-c", ",".join(map(str, sorted(cpus)))] if cpus else []
@@ -88,10 +96,37 @@ def local_service(*flags: str, cwd: Path | None = None, wait_s: float = 30.0, cp
                 if time.monotonic() > deadline or server.poll() is not None:
                     raise SystemExit(f"error: the service did not become ready in {wait_s:.0f} s")
                 time.sleep(0.25)
-        yield url
+        yield url, server
     finally:
         server.terminate()
         server.wait(10)
+
+
+def cpu_seconds(pid: int) -> tuple[float, float] | None:
+    """(user, system) CPU seconds used so far by process `pid` and every process below it (uvicorn's workers), from
+    /proc; None where there is no /proc."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    parents, times = {}, {}
+    try:
+        for entry in Path("/proc").iterdir():
+            if not entry.name.isdigit():
+                continue
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:  # ended meanwhile
+                continue
+            parents[int(entry.name)] = int(fields[1])
+            times[int(entry.name)] = (int(fields[11]), int(fields[12]))
+    except OSError:
+        return None
+    tree, grew = {pid}, True
+    while grew:
+        below = {p for p, parent in parents.items() if parent in tree} - tree
+        tree |= below
+        grew = bool(below)
+    user = sum(times[p][0] for p in tree if p in times)
+    system = sum(times[p][1] for p in tree if p in times)
+    return (user / ticks, system / ticks) if pid in times else None
 
 
 def batch_counts(url: str) -> tuple[float, float]:
@@ -139,9 +174,10 @@ def read_reply(reply: http.client.HTTPResponse, buffer: bytearray) -> int:
 
 def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requests: int | None = None,
         fmt: str = "json", region: str | None = None, warmup: int = 20, seed: int = 0,
-        extra: dict | None = None) -> Result:
+        extra: dict | None = None, on_start: Callable[[], None] | None = None) -> Result:
     """Drive the service; latency is from sending the request to having the whole reply body. `extra`: more
-    fields for every request body (points, materials)."""
+    fields for every request body (points, materials). `on_start` is called once every client has warmed up, as
+    the timed part begins (bench/service.py reads the CPU counters there)."""
     host, port = loopback(url)
     probe = http.client.HTTPConnection(host, port, timeout=10)
     probe.request("GET", "/model")
@@ -208,6 +244,8 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
     except threading.BrokenBarrierError:
         raise WarmUpFailed(f"a warm-up request to {url} failed: {warmup_failures[0]}") from None
     t0 = time.perf_counter()
+    if on_start is not None:
+        on_start()
     deadline_at[0] = t0 + span
     for t in threads:
         t.join()

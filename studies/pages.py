@@ -155,8 +155,25 @@ def service_targets_table(folder: Path = DOCS_RESULTS) -> str:
     load_ = f"load {result.get('load_at_start', '?'):.2f} at the start, {result.get('load_at_end', '?'):.2f} at the end" \
         if isinstance(result.get("load_at_start"), float) and isinstance(result.get("load_at_end"), float) else "load not recorded"
     runs = result.get("repeats", 1)
+    rows += ["", *cpu_table(result.get("cpu", []))]
     return "\n".join([*rows, "", f"Each row is the median of {runs} run(s) of {result.get('duration_s', '?')} s, the "
                       f"configurations taking turns; {load_}. Versions: {versions}.", "", provenance_line(result)])
+
+
+def cpu_table(cpu: list[dict]) -> list[str]:
+    """bench/service_targets.py's cpu_rows as Markdown lines: where the large model's batched requests spend CPU."""
+    if not cpu:
+        return []
+    lines = ["Where the large model's batched requests (8 clients, full binary, batching on) spend CPU, in core-ms "
+             "a request; *bound* is what the service would serve with every core it has (and the clients have, "
+             "where they share them) busy at that cost, *busy* the served share of it, and served / capacity = "
+             "decode / (service + clients on its cores) × busy:", "",
+             "| cores | decode alone | service, user + system | clients | clients on the service's cores | bound "
+             "(req/s) | served (req/s) | busy | served / capacity |", "|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {c['cores']} | {c['decode_ms']:.2f} | {c['service_user_ms']:.2f} + {c['service_sys_ms']:.2f} | "
+              f"{c['client_ms']:.2f} | {'yes' if c['clients_share_cores'] else 'no'} | {c['bound_rps']:,.0f} | "
+              f"{c['served_rps']:,.0f} | {c['busy']:.0%} | {c['served_share']:.2f} |" for c in cpu]
+    return lines
 
 
 # --- the README's generated blocks ---------------------------------------------------------------

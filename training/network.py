@@ -109,12 +109,13 @@ def train(
     # an early stop restarts it with a fresh history; only a restart that gains nothing ends training.
     done, start, restarts, last = 0, 0, 0, None
     while done < max_iterations:
+        cap = opt.param_groups[0]["max_iter"] = min(opt.defaults["max_iter"], max_iterations - done)  # the budget holds
         opt.step(closure)
         n = opt.state[opt._params[0]]["n_iter"] - (done - start)
         done += n
         if progress:
             progress(n)
-        if n < opt.defaults["max_iter"]:
+        if n < cap:
             loss_now = reduced_loss()
             if last is not None and loss_now >= last * (1 - 1e-6):
                 break  # a fresh start gained nothing: converged

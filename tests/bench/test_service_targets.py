@@ -52,3 +52,20 @@ def test_a_repeated_row_is_the_median_of_its_runs():
     assert (row["throughput_rps"], row["p99_ms"], row["p50_ms"]) == (240.0, 45.0, 22.5)
     assert (row["requests"], row["errors"], row["repeats"], row["mean_batch"]) == (300, 1, 3, 6.5)
     assert row["throughput_runs_rps"] == [200.0, 260.0, 240.0] and row["config"] == "on"
+
+
+def test_the_cpu_rows_account_for_the_served_share_of_the_capacity():
+    from bench.service_targets import cpu_rows
+
+    data = _data()
+    row = next(r for r in data["models"]["b"]["rows"] if r["config"] == "on" and r["scenario"] == "full binary 8")
+    row.update(service_user_ms=3.0, service_sys_ms=1.0, client_user_ms=0.25, client_sys_ms=0.75,
+               clients_share_cores=True)
+    (c,) = cpu_rows(data)
+    # 2 cores, capacity 400 req/s: the decode alone takes 5 core-ms a request; service + clients 5 on those cores
+    assert (c["decode_ms"], c["client_ms"], c["bound_rps"], c["busy"]) == (5.0, 1.0, 400.0, 0.62)
+    assert c["served_share"] == round(c["decode_ms"] / (4.0 + 1.0) * 250 / 400, 2)
+    row["clients_share_cores"] = False  # clients on other cores cost the service's cores nothing
+    assert cpu_rows(data)[0]["bound_rps"] == 500.0
+    del row["service_user_ms"]
+    assert cpu_rows(data) == []  # a result measured without the CPU fields

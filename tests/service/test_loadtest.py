@@ -1,7 +1,12 @@
-"""The load generator stops with the reason when the service fails its warm-up, instead of waiting forever."""
+"""The load generator: it stops with the reason when the service fails its warm-up, instead of waiting forever; it
+says when its timed part starts; and it reads the CPU a process tree has used."""
 
 import json
+import os
+import subprocess
+import sys
 import threading
+import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
@@ -58,3 +63,46 @@ def test_the_cli_says_so_and_exits_2(failing_url, capsys, monkeypatch):
     monkeypatch.setattr("sys.argv", ["loadtest", "--url", failing_url, "--concurrency", "2", "--duration", "1"])
     assert loadtest.main() == 2
     assert "error: a warm-up request" in capsys.readouterr().err
+
+
+class _Ok(_Failing):
+    def do_POST(self):
+        self.rfile.read(int(self.headers["content-length"]))
+        self._send(200, b"\0" * 12)
+
+
+def test_on_start_runs_once_after_the_warm_up_and_before_the_timed_requests():
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _Ok)
+    server.protocol_version = "HTTP/1.1"
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    calls = []
+    try:
+        result = loadtest.run(f"http://127.0.0.1:{server.server_address[1]}", concurrency=2, duration_s=0.3,
+                              fmt="binary", warmup=3, on_start=lambda: calls.append(time.perf_counter()))
+    finally:
+        server.shutdown()
+    assert len(calls) == 1 and result.errors == 0 and len(result.latencies_ms) > 2
+
+
+BURN = """
+import sys, time
+t0 = time.process_time()
+while time.process_time() - t0 < 0.3:
+    pass
+print("burnt", flush=True)
+sys.stdin.read()
+"""
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc")
+def test_cpu_seconds_counts_the_processes_below_the_one_named():
+    before = loadtest.cpu_seconds(os.getpid())
+    child = subprocess.Popen([sys.executable, "-c", BURN], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "burnt"
+        tree, alone = loadtest.cpu_seconds(os.getpid()), loadtest.cpu_seconds(child.pid)
+    finally:
+        child.communicate("")
+    assert sum(alone) >= 0.3
+    assert sum(tree) - sum(before) >= 0.3  # this process's own time only grows; the child's 0.3 s is in the tree
+    assert loadtest.cpu_seconds(2**22 + 12345) is None  # no such process
