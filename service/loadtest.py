@@ -103,30 +103,23 @@ def local_service_process(*flags: str, cwd: Path | None = None, wait_s: float = 
 
 
 def cpu_seconds(pid: int) -> tuple[float, float] | None:
-    """(user, system) CPU seconds used so far by process `pid` and every process below it (uvicorn's workers), from
-    /proc; None where there is no /proc."""
-    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
-    parents, times = {}, {}
+    """(user, system) CPU seconds used so far by process `pid` and every process below it (uvicorn's workers), by
+    psutil (the dev extra; bench only); None when there is no such process."""
+    import psutil
+
     try:
-        for entry in Path("/proc").iterdir():
-            if not entry.name.isdigit():
-                continue
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:  # ended meanwhile
-                continue
-            parents[int(entry.name)] = int(fields[1])
-            times[int(entry.name)] = (int(fields[11]), int(fields[12]))
-    except OSError:
+        root = psutil.Process(pid)
+        tree = [root, *root.children(recursive=True)]
+    except psutil.Error:
         return None
-    tree, grew = {pid}, True
-    while grew:
-        below = {p for p, parent in parents.items() if parent in tree} - tree
-        tree |= below
-        grew = bool(below)
-    user = sum(times[p][0] for p in tree if p in times)
-    system = sum(times[p][1] for p in tree if p in times)
-    return (user / ticks, system / ticks) if pid in times else None
+    user = system = 0.0
+    for process in tree:
+        try:
+            times = process.cpu_times()
+        except psutil.Error:  # ended meanwhile
+            continue
+        user, system = user + times.user, system + times.system
+    return user, system
 
 
 def batch_counts(url: str) -> tuple[float, float]:
