@@ -16,7 +16,9 @@ not a measurement. They depend on the model's basis (`Concurrency.for_model`):
   than spinning (contracts.model.onnx_session), 310 against 217 with one thread a lane (medians of 3).
 * a basis that stays in cache: a decode costs little per request whatever the batching, and one
   event loop's HTTP is the bottleneck, so one worker per core below 8 cores, each with one lane.
-  2 cores, 10k nodes, 8 clients: 1,458 req/s against 990 with one worker of two lanes.
+  2 cores, 10k nodes, 8 clients: 1,458 req/s against 990 with one worker of two lanes. Each
+  worker's session has two onnxruntime threads (from 2 cores on), so a request that comes alone
+  decodes on two cores.
 * from 8 cores, one worker per 4 cores for either, so HTTP and serialisation scale.
 """
 
@@ -66,10 +68,14 @@ class Concurrency:
             workers = cores if cached_basis else 1
         per_worker = max(1, cores // workers)
         lanes = min(2, per_worker)
-        # a cached decode is cheap: each lane its share of the cores. A streamed one gives each lane all of them: under
-        # load its batches are large and one lane often decodes alone while the other waits for company, and a
-        # lone batch's Gemm then runs on every core (312k nodes, 2 cores, 8 clients: 274 req/s against 223)
-        threads = max(1, per_worker // lanes) if cached_basis else per_worker
+        # A streamed basis gives each lane all the worker's cores: under load its batches are large and one lane often
+        # decodes alone while the other waits for company, and a lone batch's Gemm then runs on every core (312k nodes,
+        # 2 cores, 8 clients: 274 req/s against 223). A cached one gives each lane its share of the worker's cores, but
+        # at least two where there are two: a lone request's decode then splits over two cores (10k nodes: 0.96 ms on
+        # one thread, 0.59 on two; served, 1 client, full binary: p50 3.36 -> 2.40 ms, p99 4.18 -> 3.05), and under
+        # load the extra threads sleep rather than spin (contracts.model.onnx_session): 8 clients, 789 req/s against
+        # 791 (2 cores, medians of 3)
+        threads = max(per_worker // lanes, min(2, cores)) if cached_basis else per_worker
         return cls(workers=workers, lanes=lanes, threads=threads)
 
     @classmethod
