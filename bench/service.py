@@ -163,8 +163,9 @@ def median_row(runs: list[dict]) -> dict:
 
 
 def in_process(model: Path, cores: set[int]) -> dict:
-    """Pinned to `cores`: decode capacity with the default workers, lanes and threads (each worker's lanes as threads
-    of this process), and the work outside onnxruntime."""
+    """Pinned to `cores`: the decode capacity, the best of the default workers, lanes and threads (each worker's
+    lanes as threads of this process), one lane on every core and a lane per core of one thread each, so it does
+    not depend on the defaults; and the work outside onnxruntime."""
     from service.model import Predictor, read_model_folder
     from service.predict import ALL_NODES, Query, finish
     from service.replies import binary_reply, json_chunks
@@ -173,7 +174,8 @@ def in_process(model: Path, cores: set[int]) -> dict:
     os.sched_setaffinity(0, cores)
     try:
         c = Concurrency.for_model(len(cores), basis_bytes(model))
-        predictor = Predictor(read_model_folder(model), threads=c.threads)
+        folder = read_model_folder(model)
+        predictor = Predictor(folder, threads=c.threads)
         guides = np.tile([[5.0, 2.0]], (8, 1))
         solo = _median_ms(lambda: predictor.decode(guides[:1]))
         u = predictor.decode(guides[:1])[0]
@@ -183,12 +185,15 @@ def in_process(model: Path, cores: set[int]) -> dict:
         prediction = finish(predictor, query, u.copy())
         binary = _median_ms(lambda: binary_reply(prediction.positions))
         json_ms = _median_ms(lambda: json_chunks({"count": len(u)}, {"positions": prediction.positions}), n=5)
-        capacity = _capacity(predictor, guides, lanes=c.workers * c.lanes)  # every worker's lanes, as served
+        capacity = {}
+        for lanes, threads in sorted({(c.workers * c.lanes, c.threads), (1, len(cores)), (len(cores), 1)}):
+            p = predictor if threads == c.threads else Predictor(folder, threads=threads)
+            capacity[f"{lanes} lane(s) x {threads} thread(s)"] = _capacity(p, guides, lanes=lanes)
     finally:
         os.sched_setaffinity(0, mine)
     return {"cores": len(cores), "defaults": c.__dict__, "decode_ms_batch_1": solo,
             "reference_positions_ms": max(add - copy, 0.0), "binary_reply_ms": binary, "json_reply_ms": json_ms,
-            "decode_capacity_rps": capacity}
+            "decode_capacity_rps": max(capacity.values()), "decode_capacity_by_config_rps": capacity}
 
 
 def _median_ms(f, n: int = 20) -> float:

@@ -9,17 +9,17 @@ and 2 cores (bench/service.py, docs/results/bench_service.json); above 2 cores t
 not a measurement. They depend on the model's basis (`Concurrency.for_model`):
 * a large basis (over `CACHED_BASIS_BYTES`, streamed from memory on every decode): one worker
   process below 8 cores, since a single process batches more (a paper-scale decode reads its whole
-  basis once per call, whatever the batch size), and two batch executors (lanes) from 2 cores on,
-  so one batch decodes while the last one's replies are written, each lane with onnxruntime threads
-  for all the worker's cores (the lanes share them when both run). 2 cores, 312k nodes, 8 clients:
-  225 req/s against 190 with two workers of one lane; with idle onnxruntime threads sleeping rather
-  than spinning (contracts.model.onnx_session), 310 against 217 with one thread a lane (medians of 3).
+  basis once per call, whatever the batch size; 2 cores, 312k nodes, 8 clients: 225 req/s against
+  190 with two workers). On 2 to 7 cores its one batch executor (lane) has onnxruntime threads for
+  every core and sends a batch as soon as it is free, so the clients fall into two cohorts, one
+  decoding while the other's replies are written: the same throughput as two lanes with a 5 ms
+  queue delay, and p99 about 40 % lower (see for_cores). On 1 core batches wait up to 5 ms to grow.
 * a basis that stays in cache: a decode costs little per request whatever the batching, and one
   event loop's HTTP is the bottleneck, so one worker per core below 8 cores, each with one lane.
   2 cores, 10k nodes, 8 clients: 1,458 req/s against 990 with one worker of two lanes. Each
   worker's session has two onnxruntime threads (from 2 cores on), so a request that comes alone
   decodes on two cores.
-* from 8 cores, one worker per 4 cores for either, so HTTP and serialisation scale.
+* from 8 cores, one worker per 4 cores for either, so HTTP and serialisation scale, each with two lanes.
 """
 
 from __future__ import annotations
@@ -52,13 +52,19 @@ def usable_cores(*, affinity: set[int] | None = None, cpu_max: Path | None = Non
     return cores
 
 
+# the most a batch waits to grow (service/batching.py), ms, unless a streamed basis runs on 2 to 7 cores (for_cores)
+MAX_DELAY_MS = 5.0
+
+
 @dataclass(frozen=True)
 class Concurrency:
-    """Worker processes, batch executors per worker and onnxruntime intra-op threads per session."""
+    """Worker processes, batch executors per worker, onnxruntime intra-op threads per session, and the most a
+    batch waits to grow (ms)."""
 
     workers: int
     lanes: int
     threads: int
+    max_delay_ms: float = MAX_DELAY_MS
 
     @classmethod
     def for_cores(cls, cores: int, *, cached_basis: bool = False) -> Concurrency:
@@ -67,10 +73,17 @@ class Concurrency:
         else:
             workers = cores if cached_basis else 1
         per_worker = max(1, cores // workers)
+        if not cached_basis and 2 <= cores < 8:
+            # One lane on every core, batches sent as soon as the lane is free: 8 clients then split into two cohorts
+            # of 4, one decoding while the other's replies go out, as regular as a clock. 312k nodes, 2 cores, 8
+            # clients, full binary, 5 paired runs: p99 39.6 to 48.2 ms against 63.6 to 89.6 with two lanes and a
+            # 5 ms delay (batches of 7.3 with stragglers that wait a second cycle), at the same 219 against 217
+            # req/s. On 1 core the delay pays: 185 req/s against 158 without it (medians of 3).
+            return cls(workers=1, lanes=1, threads=cores, max_delay_ms=0.0)
         lanes = min(2, per_worker)
         # A streamed basis gives each lane all the worker's cores: under load its batches are large and one lane often
         # decodes alone while the other waits for company, and a lone batch's Gemm then runs on every core (312k nodes,
-        # 2 cores, 8 clients: 274 req/s against 223). A cached one gives each lane its share of the worker's cores, but
+        # 2 cores, 8 clients, two lanes: 274 req/s against 223). A cached one gives each lane its share of the worker's cores, but
         # at least two where there are two: a lone request's decode then splits over two cores (10k nodes: 0.96 ms on
         # one thread, 0.59 on two; served, 1 client, full binary: p50 3.36 -> 2.40 ms, p99 4.18 -> 3.05), and under
         # load the extra threads sleep rather than spin (contracts.model.onnx_session): 8 clients, 789 req/s against

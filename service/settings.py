@@ -44,9 +44,9 @@ class Settings(BaseSettings):
     batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 16
     batch_preferred_sizes: CommaInts = Field([], description=(
         "batch sizes worth waiting for (as Triton's preferred_batch_size), comma-separated; none: only the largest"))
-    batch_max_delay_ms: Annotated[float, Field(ge=0, le=100, description=(
+    batch_max_delay_ms: Annotated[float, Field(ge=0, le=100, default_factory=lambda data: defaults(data.get('model')).max_delay_ms, description=(
         "most a batch may wait to grow once a lane is free, ms, when the last batch had company; "
-        "capped at a quarter of the recent batch run time"))] = 5.0
+        "capped at a quarter of the recent batch run time (default: 5, or 0 for a large model on 2 to 7 cores)"))]
     batch_lanes: Annotated[int, Field(ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).lanes, description=(
         "batches decoded at once, each in its own thread (default: from the usable cores and the model's size)"))]
     inline_max_ms: Annotated[float, Field(ge=0, le=10, description=(

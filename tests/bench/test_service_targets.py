@@ -26,6 +26,9 @@ def test_batching_is_judged_against_the_best_unbatched_config():
     assert ratio["value"] == round(250 / 150, 2) and ratio["met"]
     share = next(v for k, v in t.items() if "decode capacity" in k)
     assert share["value"] == 0.62 and share["met"]
+    outside = next(v for k, v in t.items() if "outside onnxruntime" in k)
+    assert "(5.00 core-ms)" in next(k for k in t if "outside onnxruntime" in k)  # 2 cores at 400 req/s
+    assert outside["value"] == 0.09 and outside["met"]
 
 
 def test_every_target_says_whether_it_is_met_and_the_unmeasured_one_is_not():

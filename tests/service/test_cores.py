@@ -21,11 +21,13 @@ def test_no_cgroup_file_leaves_the_affinity(tmp_path):
     assert usable_cores(affinity={1}, cpu_max=tmp_path / "missing") == 1
 
 
-@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1)), (2, (1, 2, 2)), (4, (1, 2, 4)), (8, (2, 2, 4)),
-                                             (16, (4, 2, 4))])
+@pytest.mark.parametrize("cores, expected", [(1, (1, 1, 1, 5.0)), (2, (1, 1, 2, 0.0)), (4, (1, 1, 4, 0.0)),
+                                             (8, (2, 2, 4, 5.0)), (16, (4, 2, 4, 5.0))])
 def test_a_streamed_basis_gets_one_batching_worker_whose_lanes_may_each_use_all_its_cores(cores, expected):
+    """Below 8 cores one worker, its one lane on every core, sending batches without a queue delay from 2 cores on
+    (the clients form cohorts); on 1 core a batch waits to grow; from 8 cores a worker per 4 cores, two lanes each."""
     c = Concurrency.for_cores(cores)
-    assert (c.workers, c.lanes, c.threads) == expected
+    assert (c.workers, c.lanes, c.threads, c.max_delay_ms) == expected
     assert c.workers * c.threads <= cores  # each lane's threads fit the cores; two lanes share them
 
 
@@ -59,7 +61,10 @@ def test_the_settings_size_the_service_for_the_model_it_serves(monkeypatch, tmp_
     big.mkdir()
     manifest["mesh"]["n_nodes"] = 312_089
     (big / "manifest.json").write_text(json.dumps(manifest))
-    assert (Settings(model=big).workers, Settings(model=big).batch_lanes, Settings(model=big).threads) == (1, 2, 2)
+    s = Settings(model=big)
+    assert (s.workers, s.batch_lanes, s.threads, s.batch_max_delay_ms) == (1, 1, 2, 0.0)
+    assert Settings(model=big, batch_max_delay_ms=2).batch_max_delay_ms == 2  # a flag still wins
+    assert Settings().batch_max_delay_ms == 5.0  # models/default
 
 
 def test_the_settings_default_from_the_usable_cores_not_the_host(monkeypatch, tmp_path):
