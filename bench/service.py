@@ -8,7 +8,7 @@ model and each configuration (batching off with the default workers, off with on
 core, on with the defaults), starts `python -m service` on a free loopback port and loads it with
 service/loadtest.py for each scenario. The paper-scale decoder (bench/paper_decoder.py) is built
 into runs/ first when missing. Beside the served figures it measures, pinned to the same cores:
-the in-process decode capacity (onnxruntime, batches of 8, the default lanes and threads) and the
+the in-process decode capacity (onnxruntime, batches of 8, the best of three lane and thread counts) and the
 per-request work outside onnxruntime (reference positions, reply bodies), alone; and in every row the CPU
 that the service's processes (user and system, from /proc) and the clients spent per request, so the gap
 between served and in-process figures is accounted for (bench/service_targets.py's cpu_rows). With a 312k-node
