@@ -92,7 +92,7 @@ SCALES ?= 1.69 1.3 1 0.769
 bench: $(STAMP) ## FE timings on the default scene
 	MKL_NUM_THREADS=1 $(PY) -m bench fem
 
-bench-service: $(STAMP) ## service latency and throughput on MODEL (models/default)
+bench-service: $(STAMP) ## service latency, throughput and targets: models/default and the 312k-node decoder (built when missing)
 	$(PY) -m bench service --publish
 
 # Accuracy vs time on the end-to-end error (docs/results/tradeoff.*): $(RUNS) must be a sweep on one level of the
