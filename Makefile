@@ -10,7 +10,7 @@ PORT ?= 8000
 IMAGE ?= deform-service
 
 .DEFAULT_GOAL := help
-.PHONY: help docs docs-serve install serve test test-fast bench bench-service tradeoff convergence fe-error-taylor-hood graded-mesh linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
+.PHONY: help docs docs-serve install serve test test-fast bench bench-service bench-service-defaults tradeoff convergence fe-error-taylor-hood graded-mesh linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -94,6 +94,9 @@ bench: $(STAMP) ## FE timings on the default scene
 
 bench-service: $(STAMP) ## service latency, throughput and targets: models/default and the 312k-node decoder (built when missing)
 	$(PY) -m bench service --publish
+
+bench-service-defaults: $(STAMP) ## the service's default workers, lanes, threads and queue delay against their alternatives
+	$(PY) -m bench service-defaults --publish
 
 # Accuracy vs time on the end-to-end error (docs/results/tradeoff.*): $(RUNS) must be a sweep on one level of the
 # convergence study ($(CONVERGENCE)) or one of the graded meshes ($(GRADED)), e.g. RUNS=runs/default (the

@@ -124,18 +124,20 @@ def client_cores(service: set[int]) -> set[int]:
     return others or service
 
 
-def served(model: Path, cores: set[int], duration_s: float, *, large: bool, repeats: int = 1) -> list[dict]:
-    """Each configuration and scenario `repeats` times, the configurations taking turns (so a slow spell of a shared
-    machine falls on all of them), reduced to one row each by `median_row`."""
+def served(model: Path, cores: set[int], duration_s: float, *, large: bool, repeats: int = 1,
+           candidates: list[tuple[str, list[str]]] | None = None, scenarios: list[tuple] | None = None) -> list[dict]:
+    """Each configuration (`configs` unless `candidates` are given, as (name, service flags)) and scenario
+    `repeats` times, the configurations taking turns (so a slow spell of a shared machine falls on all of them),
+    reduced to one row each by `median_row`."""
     runs, mine = {}, os.sched_getaffinity(0)
     share = not (mine - cores)  # the clients run on the service's cores
     os.sched_setaffinity(0, client_cores(cores))
     try:
         for _ in range(repeats):
-            for config, flags in configs(len(cores)):
+            for config, flags in candidates or configs(len(cores)):
                 with loadtest.local_service_process("--model", str(model), *flags, "--access-log", "off", wait_s=180,
                                                     cpus=cores) as (url, server):
-                    for scenario in (LARGE if large else SMALL):
+                    for scenario in scenarios or (LARGE if large else SMALL):
                         row = {"cores": len(cores), "config": config, "clients_share_cores": share,
                                **run_scenario(url, scenario, duration_s, large=large, pid=server.pid)}
                         runs.setdefault((config, scenario[0]), []).append(row)

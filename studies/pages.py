@@ -265,6 +265,25 @@ def convergence_table(result: dict) -> str:
     return "\n".join(out)
 
 
+def defaults_table(result: dict) -> str:
+    """bench/service_defaults.py's result: each candidate configuration served (the defaults in bold), then where
+    the defaults rank among them per model, core count and scenario."""
+    out = ["| nodes | cores | scenario | configuration | req/s | p50 (ms) | p99 (ms) | mean batch |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        config = f"**{r['config']}** (defaults)" if r["default"] else r["config"]
+        batch = "—" if r.get("mean_batch") is None else f"{r['mean_batch']:.1f}"
+        out.append(f"| {r['n_nodes']:,} | {r['cores']} | {r['scenario']} | {config} | {r['throughput_rps']:.0f} | "
+                   f"{r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {batch} |")
+    out += ["", "| nodes | cores | scenario | defaults' rank, req/s | defaults' rank, p99 | req/s / the most | "
+            "p99 / the lowest |", "|---|---|---|---|---|---|---|"]
+    for s in result["defaults_summary"]:
+        out.append(f"| {s['n_nodes']:,} | {s['cores']} | {s['scenario']} | {s['defaults_rps_rank']} of "
+                   f"{s['candidates']} | {s['defaults_p99_rank']} of {s['candidates']} | "
+                   f"{s['defaults_rps_vs_best']:.2f} | {s['defaults_p99_vs_best']:.2f} |")
+    return "\n".join(out)
+
+
 def result_block(name: str, folder: Path = DOCS_RESULTS) -> str:
     """The Markdown a docs page shows for docs/results/NAME.json: its figures, provenance and staleness."""
     result = load(name, folder)
@@ -273,6 +292,8 @@ def result_block(name: str, folder: Path = DOCS_RESULTS) -> str:
     if "report_md" in result:  # a study that wrote a Markdown report: shown under its own heading levels
         body = re.sub(r"^(#+) ", r"\1## ", result["report_md"].split("\n", 1)[1], flags=re.M)
         body = re.sub(r"\]\((\w+)\.(json|png)\)", r"](results/\1.\2)", body)
+    elif "defaults_summary" in result:
+        body = defaults_table(result)
     elif "analysis" in result and "levels" in result:
         body = convergence_table(result)
     elif isinstance(result.get("rows"), list) and result["rows"]:
