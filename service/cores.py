@@ -78,20 +78,18 @@ class Concurrency:
             # of 4, one decoding while the other's replies go out, as regular as a clock. 312k nodes, 2 cores, 8
             # clients, full binary, 5 paired runs: p99 39.6 to 48.2 ms against 63.6 to 89.6 with two lanes and a
             # 5 ms delay (batches of 7.3 with stragglers that wait a second cycle), at the same 219 against 217
-            # req/s. docs/results/bench_service_defaults.json (medians of 3): p99 41.5 ms and 246 req/s, against
-            # 44.7 and 259 with one lane and the delay, 48.9 and 248 with two lanes and the delay: the lowest p99
-            # for at most 5 % of throughput. On 1 core the delay pays: 210 req/s against 184 without it.
+            # req/s. On 1 core the delay pays in throughput instead (210 req/s against 184 without it). Both are
+            # measured against their alternatives in docs/results/bench_service_defaults.json.
             return cls(workers=1, lanes=1, threads=cores, max_delay_ms=0.0)
         lanes = min(2, per_worker)
         # A streamed basis gives each lane all the worker's cores: under load its batches are large and one lane often
         # decodes alone while the other waits for company, and a lone batch's Gemm then runs on every core (312k nodes,
-        # 2 cores, 8 clients, two lanes: 274 req/s against 223). A cached one gives each lane its share of the worker's cores, but
-        # at least two where there are two: a lone request's decode then splits over two cores (10k nodes: 0.96 ms on
-        # one thread, 0.59 on two; served, 1 client, full binary: p50 3.36 -> 2.40 ms, p99 4.18 -> 3.05), and under
+        # 2 cores, 8 clients, two lanes: 274 req/s against 223). A cached one gives each lane its share of the worker's
+        # cores, but at least two where there are two: a lone request's decode then splits over two cores (10k: 0.96 ms
+        # on one thread, 0.59 on two; served, 1 client, full binary: p50 3.36 -> 2.40 ms, p99 4.18 -> 3.05), and under
         # load the extra threads sleep rather than spin (contracts.model.onnx_session). What it costs under load:
-        # docs/results/bench_service_defaults.json, 2 cores, medians of 3: 1 client 472 req/s and p99 2.54 ms
-        # against 356 and 3.18 on one thread; 8 clients 824 against 882 req/s. A lone request is the common case
-        # (a guide polling its answer each frame), so two threads
+        # a few per cent of 8-client throughput on 2 cores (docs/results/bench_service_defaults.json). A lone request
+        # is the common case (a guide polling its answer each frame), so two threads
         threads = max(per_worker // lanes, min(2, cores)) if cached_basis else per_worker
         return cls(workers=workers, lanes=lanes, threads=threads)
 
