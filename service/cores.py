@@ -87,9 +87,9 @@ class Concurrency:
         # 2 cores, 8 clients, two lanes: 274 req/s against 223). A cached one gives each lane its share of the worker's
         # cores, but at least two where there are two: a lone request's decode then splits over two cores (10k: 0.96 ms
         # on one thread, 0.59 on two; served, 1 client, full binary: p50 3.36 -> 2.40 ms, p99 4.18 -> 3.05), and under
-        # load the extra threads sleep rather than spin (contracts.model.onnx_session). What it costs under load:
-        # a few per cent of 8-client throughput on 2 cores (docs/results/bench_service_defaults.json). A lone request
-        # is the common case (a guide polling its answer each frame), so two threads
+        # load the extra threads sleep rather than spin (contracts.model.onnx_session). Under load they cost some
+        # throughput: docs/results/bench_service_defaults.json has 8 clients on 2 cores against one thread. A lone
+        # request is the common case (a guide polling its answer each frame), so two threads
         threads = max(per_worker // lanes, min(2, cores)) if cached_basis else per_worker
         return cls(workers=workers, lanes=lanes, threads=threads)
 
