@@ -246,15 +246,20 @@ def versions() -> dict[str, str]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench service", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_run_flags(ap: argparse.ArgumentParser) -> None:
+    """The flags the service benchmarks share: --model (repeatable), --duration, --repeats and --publish."""
     ap.add_argument("--model", type=Path, action="append",
                     help=f"a model folder (repeat); default {DEFAULT_MODEL.name} and {paper_decoder.PAPER_DECODER}")
     ap.add_argument("--duration", type=float, default=3.0, help="seconds per run of a row")
     ap.add_argument("--repeats", type=int, default=3, help="runs of each row, the configurations taking turns; "
                     "the row is their median (default 3)")
     results.add_publish_flag(ap)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench service", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_run_flags(ap)
     args = ap.parse_args(argv)
     models = args.model or [DEFAULT_MODEL, paper_decoder.ensure()]
     if args.repeats < 1:

@@ -25,7 +25,7 @@ from service.settings import DEFAULT_MODEL
 from studies import results
 
 from . import paper_decoder
-from .service import core_sets, served, versions
+from .service import add_run_flags, core_sets, served, versions
 
 FULL_1, FULL_8 = ("full binary 1", None, "binary", 1), ("full binary 8", None, "binary", 8)
 
@@ -78,11 +78,7 @@ def summarise(rows: list[dict]) -> list[dict]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench service-defaults", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", type=Path, action="append",
-                    help=f"a model folder (repeat); default {DEFAULT_MODEL.name} and {paper_decoder.PAPER_DECODER}")
-    ap.add_argument("--duration", type=float, default=3.0, help="seconds per run of a row")
-    ap.add_argument("--repeats", type=int, default=3, help="runs of each row, the candidates taking turns (default 3)")
-    results.add_publish_flag(ap)
+    add_run_flags(ap)
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.duration <= 0:
         ap.error("--repeats must be at least 1 and --duration positive")

@@ -69,43 +69,36 @@ def test_a_lone_request_does_not_wait_for_the_delay():
     assert asyncio.run(scenario()) == [0, 1, 2]
 
 
-def test_after_a_busy_batch_the_next_waits_until_it_is_full():
-    """When the last batch had company, a batch waits (up to the delay) for more requests: here it fills up."""
+def _after_a_busy_batch_one_at_a_time(max_delay_s: float) -> tuple[list, list]:
+    """(results, batches) of three requests sent 10 ms apart to a batcher whose last batch (of two) took long."""
     calls = []
 
     async def scenario():
-        batcher = Batcher(lambda items: calls.append(items) or items, max_batch=3, max_delay_s=60.0, max_queue=8)
+        batcher = Batcher(lambda items: calls.append(items) or items, max_batch=3, max_delay_s=max_delay_s, max_queue=8)
         batcher._last_size, batcher._run_s = 2, 1e3  # as after a batch of two that took long
         batcher.start()
         tasks = []
         for i in range(3):
             tasks.append(asyncio.create_task(batcher.submit(i)))
-            await asyncio.sleep(0.01)  # one at a time: without the wait, each would go alone
+            await asyncio.sleep(0.01)  # one at a time: without a wait, each goes alone
         results = await asyncio.wait_for(asyncio.gather(*tasks), 10)
         await batcher.stop()
         return results
 
-    assert asyncio.run(scenario()) == [0, 1, 2] and calls == [[0, 1, 2]]
+    return asyncio.run(scenario()), calls
+
+
+def test_after_a_busy_batch_the_next_waits_until_it_is_full():
+    """When the last batch had company, a batch waits (up to the delay) for more requests: here it fills up."""
+    results, calls = _after_a_busy_batch_one_at_a_time(60.0)
+    assert results == [0, 1, 2] and calls == [[0, 1, 2]]
 
 
 def test_with_no_delay_a_free_lane_sends_what_waits_at_once():
     """With max_delay 0 (a large model's default on 2 to 7 cores) a free lane never waits for company, even after a
     busy batch: requests that come one at a time go one at a time, so the clients fall into cohorts."""
-    calls = []
-
-    async def scenario():
-        batcher = Batcher(lambda items: calls.append(items) or items, max_batch=3, max_delay_s=0.0, max_queue=8)
-        batcher._last_size, batcher._run_s = 2, 1e3  # as after a batch of two that took long
-        batcher.start()
-        tasks = []
-        for i in range(3):
-            tasks.append(asyncio.create_task(batcher.submit(i)))
-            await asyncio.sleep(0.01)
-        results = await asyncio.wait_for(asyncio.gather(*tasks), 10)
-        await batcher.stop()
-        return results
-
-    assert asyncio.run(scenario()) == [0, 1, 2] and calls == [[0], [1], [2]]
+    results, calls = _after_a_busy_batch_one_at_a_time(0.0)
+    assert results == [0, 1, 2] and calls == [[0], [1], [2]]
 
 
 def test_a_full_queue_refuses_at_once():
