@@ -9,7 +9,6 @@ import orjson
 from fastapi import HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
-from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
 
@@ -104,24 +103,13 @@ def parse_json(body: bytes):
         raise RequestProblem(400, field="body", type="not_utf8", message="body: not UTF-8 text, as JSON must be") from None
 
 
-class _JsonRequest(Request):
+class JsonRequest(Request):
+    """A request whose json() is parse_json's, parsed once."""
+
     async def json(self):
         if not hasattr(self, "_json"):
             self._json = parse_json(await self.body())
         return self._json
-
-
-class JsonBodyRoute(APIRoute):
-    """A route whose body must be application/json (415 otherwise, before it is read), parsed by orjson."""
-
-    def get_route_handler(self):
-        handler = super().get_route_handler()
-
-        async def json_body_handler(request: Request) -> Response:
-            require_json(request.headers.get("content-type"))
-            return await handler(_JsonRequest(request.scope, request.receive))
-
-        return json_body_handler
 
 
 def _hints(request: Request) -> dict[str, str]:

@@ -186,3 +186,47 @@ def test_every_mesh_node_sent_back_as_a_point_is_accepted(client, folder):
         got.append(np.asarray(r.json()["displacements"]))
     assert not refused, f"{len(refused)} chunks refused, first: {refused[0]}"
     np.testing.assert_allclose(np.concatenate(got), nodal, atol=1e-4)
+
+
+def _route_class(app, path: str) -> type:
+    """The class of the app's route for `path` (FastAPI keeps included routers' routes in their own router)."""
+    routes = list(app.routes)
+    while routes:
+        route = routes.pop()
+        if getattr(route, "path", None) == path:
+            return type(route)
+        routes += getattr(getattr(route, "original_router", None), "routes", [])
+    raise LookupError(path)
+
+
+@pytest.mark.parametrize("body, accept", [
+    ({}, "application/json"), ({}, "application/octet-stream"), ({"region": "markers"}, "application/json"),
+    ({"region": "prostate"}, "application/octet-stream"), ({"points": "prostate_surface"}, "application/json"),
+    ({"materials": {"prostate": {"youngs_kpa": 70.0, "std_percent": 10.0}}}, "application/json"),
+    ({"materials": {"adipose": {"shear_wave_speed_m_s": 2.0}}, "region": "markers"}, "application/octet-stream")])
+def test_a_valid_body_skips_fastapi_dependencies_and_gets_the_same_reply(client, folder, monkeypatch, body, accept):
+    """/predict's direct path (service/routes.py, PredictRoute) gives the same status, headers and bytes as FastAPI's
+    path, and solves no dependency on the way; an invalid body takes FastAPI's path, for its 422."""
+    import fastapi.routing
+
+    solved, solve = [], fastapi.routing.solve_dependencies
+
+    async def counting(*args, **kwargs):
+        solved.append(1)
+        return await solve(*args, **kwargs)
+
+    monkeypatch.setattr(fastapi.routing, "solve_dependencies", counting)
+    if body.get("points"):
+        body = {"points": folder.nodes[folder.regions[body["points"]][:7]].tolist()}
+    request = {"json": {"displacement_mm": 4.0, "angle_deg": -3.0, **body}, "headers": {"accept": accept}}
+    direct = client.post("/predict", **request)
+    assert direct.status_code == 200 and not solved
+    monkeypatch.setattr(_route_class(client.app, "/predict"), "direct", False)
+    general = client.post("/predict", **request)
+    assert solved and general.status_code == 200
+    assert dict(direct.headers) == dict(general.headers) and direct.content == general.content
+    monkeypatch.undo()
+    solved.clear()
+    monkeypatch.setattr(fastapi.routing, "solve_dependencies", counting)
+    bad = client.post("/predict", json={**request["json"], "angle_deg": 99.0}, headers=request["headers"])
+    assert bad.status_code == 422 and bad.json()["detail"][0]["field"] == "angle_deg" and solved
