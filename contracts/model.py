@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, model_validator
 
 from .envelope import Envelope
 from .materials import MaterialsInfo
@@ -200,6 +200,25 @@ class ModelManifest(_Frozen):
     materials: MaterialsInfo | None = None  # the tissue stiffnesses the model takes as inputs; None: none
     regions: dict[str, int] = {}  # name -> node count; filled by the writer
     files: dict[str, str] = {}  # name -> sha256; filled by the writer
+
+    @model_validator(mode="after")
+    def _materials_by_ratios(self):
+        """A manifest from before MaterialsInfo.by_ratios gets it from its scene (judged_by_ratios)."""
+        if self.materials is not None and self.materials.by_ratios is None:
+            by = judged_by_ratios(self.scene.spec, tissues=self.mesh.tissues, inputs=self.materials.tissues)
+            object.__setattr__(self, "materials", self.materials.model_copy(update={"by_ratios": by}))
+        return self
+
+
+def judged_by_ratios(spec: dict[str, Any], *, tissues: list[str], inputs: list[str]) -> bool:
+    """Whether only the inputs' stiffness ratios move the answer (contracts.materials): no force load (gravity)
+    and every tissue of the mesh an input or a bone held fixed. A soft tissue left at its nominal E makes E x k
+    of the inputs another patient."""
+    if spec.get("effects", {}).get("gravity", False):
+        return False
+    defined, fixed = spec.get("tissues", {}), spec.get("effects", {}).get("fixed_bones", True)
+    loaded = [t for t in tissues if not (fixed and defined.get(t, {}).get("bone", False))]
+    return set(loaded) <= set(inputs)
 
 
 def regions(mesh: TetMesh) -> dict[str, np.ndarray]:

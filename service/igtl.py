@@ -10,8 +10,9 @@ Off by default; `--igtl true` (env DEFORM_IGTL) serves on `--igtl-port` (18944, 
                                     answered by a STRING status, "materials set" or why they were refused
     out  POINT "DeformedPoints"     marker_1 .. marker_8, then each configured target (`--igtl-targets
                                     '{"lesion": [x, y, z]}'`, reference mm), at their deformed positions
-                                    (a material model: each point's diameter is 2 |std|, its 1-sigma sphere
-                                    from the materials' uncertainty, service/materials.py)
+                                    (a material model: each point's diameter is 2 x HALO_SIGMAS x |std|, the
+                                    sphere of radius 2 |std| the viewer draws as its halo, from the materials'
+                                    uncertainty: contracts.materials.HALO_SIGMAS, service/materials.py)
          POLYDATA "ProstateSurface" with `--igtl-surface true`: the deformed prostate surface (triangles)
          STRING "NeedleGuideStatus" instead, when a message is refused: an off-axis pose (more than
                                     0.1 mm across the tilted axis or 0.1 deg about another axis; never
@@ -38,11 +39,13 @@ import pyigtl
 from pydantic import ValidationError
 from pyigtl.messages import CRC64
 
+from contracts.materials import HALO_SIGMAS
 from contracts.model import ModelFolder
 from contracts.tet10 import p2_weights
 
 from .export import surface_of
 from .guide import Guide, OffAxisPose
+from .http import RequestProblem
 from .materials import NO_MATERIALS, material_vectors, materials_request_model
 from .model import PointLocator, Predictor
 
@@ -116,7 +119,10 @@ class Responder:
             err = exc.errors()[0]
             where = ".".join(["materials", *map(str, err["loc"])]) if err["loc"] else "materials"
             return f"refused {MATERIALS_NAME}: {where}: {err['msg']}"
-        self.materials = material_vectors(self.folder.manifest.materials, given)
+        try:
+            self.materials = material_vectors(self.folder.manifest.materials, given)
+        except RequestProblem as exc:  # ratios outside the box: the message names the field
+            return f"refused {MATERIALS_NAME}: {exc.detail}"
         return f"materials set: {given.model_dump_json(exclude_none=True)}"
 
     def guide_state(self, matrix: np.ndarray) -> tuple[float, float]:
@@ -141,7 +147,7 @@ class Responder:
             return [status(f"refused {POSE_NAME}: {exc}")]
         positions, std = self.positions_std(predictor, d, beta)
         reply = [pyigtl.PointMessage(positions=positions, names=self.names, rgba_colors=self.rgba, groups=self.groups,
-                                     diameters=None if std is None else 2.0 * std,
+                                     diameters=None if std is None else 2.0 * HALO_SIGMAS * std,
                                      device_name=POINTS_NAME, timestamp=message.timestamp)]
         if self.surface is not None:
             ids, triangles = self.surface

@@ -6,15 +6,21 @@ A request may give, per tissue the model lists (GET /model, `materials.inputs`),
                                                                    manifest's nu and rho)
     and optionally "std_percent" (of that value) or "std" (in its unit)
 
-inside the declared range (else 422 naming e.g. `materials.prostate.youngs_kpa`). A tissue left out is at its
-nominal E with the scene's stated uncertainty (`std_percent` of E), so an old client sending only (d, beta)
-gets the nominal answer. The graph takes theta = ln(E / E_nominal) and sigma = the std of ln E: std(E) / E, or
-2 std(v_s) / v_s (E ~ v_s^2), to first order.
+A tissue left out is at its nominal E with the scene's stated uncertainty (`std_percent` of E), so an old client
+sending only (d, beta) gets the nominal answer. The graph takes theta = ln(E / E_nominal) and sigma = the std of
+ln E (contracts.materials.sigma_ln_e: std(E) / E, or 2 std(v_s) / v_s, to first order).
 
-Every answer of a material model carries `std_mm` (per returned point, the std of x, y and z) and an
+A model judged by ratios (MaterialsInfo.by_ratios: every load-bearing tissue an input) takes any E > 0: the
+request is judged by its ratios, and the graph answers at the box's point with those ratios nearest the nominal
+(contracts.materials.ratio_point), so every E x k gets the answer of E; ratios no point of the box has are a 422
+naming a tissue and the bound it crossed (`materials.prostate`, type outside_box). Otherwise each value must lie
+inside its declared range (422 naming e.g. `materials.prostate.youngs_kpa`).
+
+Every answer of a material model carries `std_mm` (per returned point, the std of x, y and z: 1 sigma) and an
 `error_budget`: the surrogate's and the FE discretisation's bounds and the first-order material model's error
 (the manifest's accuracy, each with what it was measured against), the largest std length at the returned
-points, and total_mm = the three bounds + 2 x that std.
+points, and total_mm = the three bounds + HALO_SIGMAS (2) x that std. Whatever draws or sends an uncertainty as a
+size (the viewer's halo, OpenIGTLink's point diameter) draws the same HALO_SIGMAS x std radius.
 """
 
 from __future__ import annotations
@@ -24,12 +30,14 @@ from typing import Annotated, ClassVar, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic_core import PydanticCustomError
 
-from contracts.materials import MaterialInput, MaterialsInfo
+from contracts.materials import (HALO_SIGMAS, MaterialInput, MaterialsInfo, OutsideBox, ratio_point, sigma_ln_e,
+                                 youngs_from_shear_wave_kpa)
 from contracts.model import ModelManifest
 
 NO_MATERIALS = "this model takes no material inputs"
-STD_SIGMAS = 2.0  # total_mm counts the material uncertainty at 2 std
+STD_SIGMAS = HALO_SIGMAS  # total_mm counts the material uncertainty at 2 std, as the viewer and OpenIGTLink draw it
 
 
 def _given(*names: str) -> dict:
@@ -51,9 +59,6 @@ class TissueValueBase(BaseModel):
     shear_wave_speed_m_s: Optional[float] = None
     std_percent: Optional[float] = None
     std: Optional[float] = None
-    # the most `std` may be, given with E (kPa) or with v_s (m/s): the upper end of that value's range, so sigma
-    # stays finite (a std of 1e308 gave infinite std_mm); _tissue_model sets it and says it in the schema
-    std_max: ClassVar[tuple[float, float]] = (math.inf, math.inf)
 
     @model_validator(mode="after")
     def _one_each(self):
@@ -63,62 +68,88 @@ class TissueValueBase(BaseModel):
             raise ValueError("give std_percent or std, not both")
         if self.std is not None and self.youngs_kpa is None and self.shear_wave_speed_m_s is None:
             raise ValueError("std is in the unit of youngs_kpa or shear_wave_speed_m_s: give one of them")
-        if self.std is not None:
-            most, unit = (self.std_max[0], "kPa") if self.youngs_kpa is not None else (self.std_max[1], "m/s")
-            if self.std > most:
-                raise ValueError(f"std {self.std:g} {unit} is over {most:g} {unit}, the upper end of the value's range")
+        value = self.youngs_kpa if self.youngs_kpa is not None else self.shear_wave_speed_m_s
+        if self.std is not None and self.std > value:
+            # so sigma stays finite (a std of 1e308 gave infinite std_mm): at most the value, as std_percent's 100;
+            # a bound between two fields that JSON schema cannot state, hence its own type
+            raise PydanticCustomError("std_over_value", "std {std:g} is over the value {value:g}: at most 100 % of it",
+                                      {"std": self.std, "value": value})
         return self
 
 
-def _number(lo: float, hi: float, what: str):
-    return Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, ge=lo, le=hi, description=what)]
+def _number(what: str, **bounds):
+    return Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, description=what, **bounds)]
 
 
-def _tissue_model(m: MaterialInput) -> type[TissueValueBase]:
+def _tissue_model(m: MaterialInput, *, by_ratios: bool) -> type[TissueValueBase]:
+    """One tissue's request model: any E > 0 when judged by ratios (the box is checked on the whole request), else
+    inside its declared range."""
     (e_lo, e_hi), (v_lo, v_hi) = m.youngs_kpa_range, m.shear_wave_range_m_s
     v_lo, v_hi = math.floor(v_lo * 1e4) / 1e4, math.ceil(v_hi * 1e4) / 1e4  # the E range's ends stay inside
-    # std's bound in the schema as well: each `if` names the unit the std is in
-    bounds = {"std_max": (e_hi, v_hi), "model_config": ConfigDict(extra="forbid", json_schema_extra={"allOf": [
-        *TissueValueBase.model_config["json_schema_extra"]["allOf"],
-        {"if": _given("youngs_kpa"), "then": {"properties": {"std": {"maximum": e_hi}}}},
-        {"if": _given("shear_wave_speed_m_s"), "then": {"properties": {"std": {"maximum": v_hi}}}}]})}
+    if by_ratios:
+        e_kw, v_kw = {"gt": 0}, {"gt": 0}
+        e_what = (f"Young's modulus, kPa > 0, judged with the others by ratios (GET /model: materials.box; at the "
+                  f"nominal scale {e_lo:g}..{e_hi:g} kPa, nominal {m.nominal_youngs_kpa:g})")
+        v_what = f"shear-wave speed, m/s > 0 (eq. 1), judged by ratios (at the nominal scale {v_lo:g}..{v_hi:g} m/s)"
+    else:
+        e_kw, v_kw = {"ge": e_lo, "le": e_hi}, {"ge": v_lo, "le": v_hi}
+        e_what = f"Young's modulus, {e_lo:g}..{e_hi:g} kPa (nominal {m.nominal_youngs_kpa:g})"
+        v_what = f"shear-wave speed, {v_lo:g}..{v_hi:g} m/s (eq. 1)"
     return create_model(
-        f"Material_{m.tissue}", __base__=type(f"TissueValue_{m.tissue}", (TissueValueBase,), bounds),
-        youngs_kpa=(_number(e_lo, e_hi, f"Young's modulus, {e_lo:g}..{e_hi:g} kPa (nominal {m.nominal_youngs_kpa:g})"), None),
-        shear_wave_speed_m_s=(_number(v_lo, v_hi, f"shear-wave speed, {v_lo:g}..{v_hi:g} m/s (eq. 1)"), None),
+        f"Material_{m.tissue}", __base__=TissueValueBase,
+        youngs_kpa=(_number(e_what, **e_kw), None), shear_wave_speed_m_s=(_number(v_what, **v_kw), None),
         std_percent=(Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, ge=0, le=100,
                                                       description=f"1-sigma, % of the value (default {m.std_percent:g} % of E)")], None),
         std=(Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, ge=0,
-                                              description="1-sigma in the value's unit")], None))
+                                              description="1-sigma in the value's unit, at most the value")], None))
 
 
 def materials_request_model(info: MaterialsInfo) -> type[BaseModel]:
     """The request's `materials` object: one optional field per tissue, with the declared ranges."""
-    fields = {m.tissue: (Optional[_tissue_model(m)], Field(None)) for m in info.inputs}
+    fields = {m.tissue: (Optional[_tissue_model(m, by_ratios=bool(info.by_ratios))], Field(None)) for m in info.inputs}
     return create_model("Materials", __config__=ConfigDict(extra="forbid"), **fields)
 
 
+def _youngs_sigma(m: MaterialInput, value: TissueValueBase | None) -> tuple[float, float]:
+    """A tissue's E (kPa) and the std of ln E, from its request value (None: nominal, the scene's std)."""
+    youngs, sigma = m.nominal_youngs_kpa, sigma_ln_e(std=m.std_percent, value=100.0)
+    if value is None:
+        return youngs, sigma
+    speed = value.shear_wave_speed_m_s is not None
+    measured = value.shear_wave_speed_m_s if speed else value.youngs_kpa
+    if measured is not None:
+        youngs = youngs_from_shear_wave_kpa(shear_wave_speed_m_s=measured, density_kg_m3=m.density_kg_m3,
+                                            poisson=m.poisson) if speed else measured
+    if value.std is not None:
+        sigma = sigma_ln_e(std=value.std, value=measured, shear_wave=speed)
+    elif value.std_percent is not None:
+        sigma = sigma_ln_e(std=value.std_percent, value=100.0, shear_wave=speed)
+    return youngs, sigma
+
+
 def material_vectors(info: MaterialsInfo, given: BaseModel | None) -> np.ndarray:
-    """(2, m) float32: theta = ln(E / E_nominal) and sigma = std of ln E per tissue, in the graph's order."""
+    """(2, m) float32: theta = ln(E / E_nominal) and sigma = std of ln E per tissue, in the graph's order.
+
+    By ratios, theta is the box's point with the request's ratios (ratio_point); RequestProblem 422 (outside_box)
+    when there is none, naming a tissue the request gave (the one over its upper bound if it gave both)."""
     out = np.zeros((2, len(info.inputs)), dtype=np.float64)
     for i, m in enumerate(info.inputs):
-        value = getattr(given, m.tissue, None) if given is not None else None
-        youngs, sigma = m.nominal_youngs_kpa, m.std_percent / 100.0
-        if value is not None and value.shear_wave_speed_m_s is not None:
-            v = value.shear_wave_speed_m_s
-            youngs = 2.0 * (1.0 + m.poisson) * v**2 * m.density_kg_m3 / 1e3
-            if value.std is not None:
-                sigma = 2.0 * value.std / v
-            elif value.std_percent is not None:
-                sigma = 2.0 * value.std_percent / 100.0
-        elif value is not None:
-            youngs = value.youngs_kpa if value.youngs_kpa is not None else youngs
-            if value.std is not None:
-                sigma = value.std / youngs
-            elif value.std_percent is not None:
-                sigma = value.std_percent / 100.0
-        lo, hi = m.youngs_kpa_range
-        out[:, i] = math.log(min(max(youngs, lo), hi) / m.nominal_youngs_kpa), sigma  # v_s rounding stays inside
+        youngs, sigma = _youngs_sigma(m, getattr(given, m.tissue, None) if given is not None else None)
+        if not info.by_ratios:
+            lo, hi = m.youngs_kpa_range
+            youngs = min(max(youngs, lo), hi)  # v_s rounding stays inside
+        out[:, i] = math.log(youngs / m.nominal_youngs_kpa), sigma
+    if info.by_ratios and given is not None:
+        lo, hi = info.log_box
+        try:
+            out[0] = ratio_point(out[0].tolist(), lo, hi, info.tissues)
+        except OutsideBox as exc:
+            from .http import RequestProblem  # here: service.http imports the predictor, which imports this module
+
+            named = exc.stiff if getattr(given, exc.stiff, None) is not None or getattr(given, exc.soft) is None \
+                else exc.soft
+            field = f"materials.{named}"
+            raise RequestProblem(422, field=field, type="outside_box", message=f"{field}: {exc}") from None
     return out.astype(np.float32)
 
 
@@ -158,9 +189,36 @@ def error_budget(parts: dict[str, dict], region: str | None, std: np.ndarray) ->
             "region": region if region in parts else "all_nodes", "measured_against": parts["reference"]}
 
 
+def box(info: MaterialsInfo) -> dict:
+    """GET /model's `materials.box`: the ranges as ratios E / E_nominal (the graph's box), in kPa at the nominal
+    scale (the scene's E, the adipose at its nominal), and by ratios each tissue alone with the others nominal."""
+    lo, hi = info.log_box
+    out = {"judged_by": "ratios" if info.by_ratios else "absolute E",
+           "rule": ("a request is answerable when one common factor k puts every E_i / (k E_i,nominal) inside its "
+                    "ratio range; it is answered at the k nearest the nominal stiffnesses, so E x k gives the "
+                    "answer of E" if info.by_ratios else
+                    "each E inside its range: a tissue that carries load is not an input, so its nominal E is "
+                    "absolute and E x k of the inputs is another patient"),
+           "ratio_to_nominal": {}, "youngs_kpa_at_nominal_scale": {}}
+    for i, m in enumerate(info.inputs):
+        out["ratio_to_nominal"][m.tissue] = [math.exp(lo[i]), math.exp(hi[i])]
+        out["youngs_kpa_at_nominal_scale"][m.tissue] = list(m.youngs_kpa_range)
+    if info.by_ratios:  # one tissue moved, the others at their nominal E: the shifts the others allow widen its range
+        out["youngs_kpa_alone"] = {m.tissue: [m.nominal_youngs_kpa * math.exp(lo[i] + max([-h for j, h in enumerate(hi) if j != i], default=0.0)),
+                                              m.nominal_youngs_kpa * math.exp(hi[i] + min([-l for j, l in enumerate(lo) if j != i], default=0.0))]
+                                   for i, m in enumerate(info.inputs)}
+    return out
+
+
 def summary(info: MaterialsInfo) -> dict:
-    """GET /model's `materials`: the inputs with their ranges, units, nominal values and default std."""
+    """GET /model's `materials`: the inputs with their ranges, units, nominal values and default std, the box as
+    ratios, and the std convention (what a drawn or sent uncertainty's radius is)."""
     return {"parameter": info.parameter, "units": {"youngs_kpa": "kPa", "shear_wave_speed_m_s": "m/s",
                                                    "std_percent": "% of the value", "std": "the value's unit"},
             "inputs": [{**m.model_dump(), "shear_wave_range_m_s": list(m.shear_wave_range_m_s)} for m in info.inputs],
+            "box": box(info),
+            "std": {"std_mm": "1 sigma of x, y and z per point", "sigma_ln_e": "std_percent / 100 of E, "
+                    "2 std_percent / 100 of a shear-wave speed (std / value in its unit)",
+                    "halo_sigmas": HALO_SIGMAS, "halo": f"drawn and sent as a sphere of radius {HALO_SIGMAS:g} x |std_mm| "
+                    f"(the viewer's halo; OpenIGTLink's point diameter {2 * HALO_SIGMAS:g} x |std_mm|)"},
             "accuracy": info.accuracy.model_dump() if info.accuracy is not None else None}

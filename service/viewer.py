@@ -29,6 +29,7 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, ConfigDict, Field
 
+from contracts.materials import HALO_SIGMAS
 from contracts.model import ModelFolder
 from contracts.tet10 import p2_weights
 
@@ -128,6 +129,8 @@ def build_scene(predictor: Predictor) -> Scene:
         # a material model's stiffness inputs: one slider each (E in kPa, within the range); null: none
         "materials": [m.model_dump(include={"tissue", "nominal_youngs_kpa", "youngs_kpa_range", "std_percent"})
                       for m in manifest.materials.inputs] if manifest.materials is not None else None,
+        # a material model's halo radius in std, as OpenIGTLink's points and the error budget count it
+        **({"halo_sigmas": HALO_SIGMAS} if manifest.materials is not None else {}),
     }, option=orjson.OPT_SERIALIZE_NUMPY))
 
 

@@ -5,7 +5,7 @@
 
 At a guide position of a material sweep (a grid point), each tissue's theta_i = ln(E_i / E_i,nominal) is drawn
 independently from a normal distribution with the std the scene states (std_percent, as the service reads it:
-sigma_i = ln(1 + std/100)), clipped to the declared range, n times. Each draw is solved afresh (the continuation
+contracts.materials.sigma_ln_e, sigma_i = std_percent / 100), clipped to the declared range, n times. Each draw is solved afresh (the continuation
 of fem_offline.material_cases, from the nominal state at that position). Per node, the standard deviation of the
 n fresh displacements (per component, then the largest over x, y, z) is compared with the first-order one,
 sqrt(sum_i sigma_i^2 S_i^2), where sigma_i is the std of the draws actually made (the clipping narrows them):
@@ -32,8 +32,10 @@ REGIONS = ("markers", "prostate_surface", "all_nodes")
 
 def draws(scene, n: int, seed: int) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """(tissues, theta (n, m) clipped to the ranges, the scene's sigma_i)."""
+    from contracts.materials import sigma_ln_e
+
     tissues = tuple(scene.materials)
-    sigma = np.array([np.log1p(scene.materials[t].std_percent / 100) for t in tissues])
+    sigma = np.array([sigma_ln_e(std=scene.materials[t].std_percent, value=100.0) for t in tissues])
     lo, hi = (np.array([np.log(scene.materials[t].youngs_kpa_range[j] / scene.tissues[t].youngs) for t in tissues])
               for j in (0, 1))
     theta = np.random.default_rng(seed).normal(size=(n, len(tissues))) * sigma

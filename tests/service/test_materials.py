@@ -71,6 +71,27 @@ def test_youngs_modulus_and_shear_wave_speed_give_the_same_answer(mat_client, gr
     np.testing.assert_allclose(by_v["std_mm"], std[0], atol=1e-6)  # 5 % in v_s is 10 % in E
 
 
+@pytest.fixture(scope="module")
+def absolute_model(tiny_material_model, tmp_path_factory) -> Path:
+    """tiny_material_model as a model judged by absolute E (by_ratios false in its manifest: what a scene with a
+    soft tissue that is not an input gets); the manifest's hashes cover the other files, which are the same."""
+    import json
+    import shutil
+
+    out = tmp_path_factory.mktemp("absolute") / "tiny_absolute"
+    shutil.copytree(tiny_material_model, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["materials"]["by_ratios"] = False
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    return out
+
+
+@pytest.fixture(scope="module")
+def abs_client(absolute_model):
+    with served(absolute_model) as client:
+        yield client
+
+
 @pytest.mark.parametrize("materials, field", [
     ({"prostate": {"youngs_kpa": 90.0}}, "materials.prostate.youngs_kpa"),
     ({"adipose": {"youngs_kpa": 8.0}}, "materials.adipose.youngs_kpa"),
@@ -79,10 +100,113 @@ def test_youngs_modulus_and_shear_wave_speed_give_the_same_answer(mat_client, gr
     ({"prostate": {"youngs_kpa": 60.0, "shear_wave_speed_m_s": 4.5}}, "materials.prostate"),
     ({"prostate": {"std": 5.0}}, "materials.prostate"),
 ])
-def test_a_material_outside_its_range_is_refused_naming_the_field(mat_client, materials, field):
-    reply = _post(mat_client, materials=materials)
+def test_judged_by_absolute_e_a_material_outside_its_range_is_refused_naming_the_field(abs_client, materials, field):
+    reply = _post(abs_client, materials=materials)
     assert reply.status_code == 422, reply.text
     assert reply.json()["detail"][0]["field"] == field
+
+
+@pytest.mark.parametrize("materials, field, kind", [
+    ({"prostate": {"youngs_kpa": 200.0}}, "materials.prostate", "outside_box"),
+    ({"adipose": {"youngs_kpa": 4.0}}, "materials.adipose", "outside_box"),
+    ({"prostate": {"shear_wave_speed_m_s": 15.0}}, "materials.prostate", "outside_box"),
+    ({"prostate": {"youngs_kpa": 0.0}}, "materials.prostate.youngs_kpa", "greater_than"),
+    ({"liver": {"youngs_kpa": 5.0}}, "materials.liver", "extra_forbidden"),
+    ({"prostate": {"youngs_kpa": 60.0, "shear_wave_speed_m_s": 4.5}}, "materials.prostate", "value_error"),
+    ({"prostate": {"std": 5.0}}, "materials.prostate", "value_error"),
+    ({"prostate": {"youngs_kpa": 70.0, "std": 70.5}}, "materials.prostate", "std_over_value"),
+])
+def test_judged_by_ratios_a_request_outside_the_box_is_refused_naming_the_field(mat_client, materials, field, kind):
+    reply = _post(mat_client, materials=materials)
+    assert reply.status_code == 422, reply.text
+    error = reply.json()["detail"][0]
+    assert (error["field"], error["type"]) == (field, kind)
+
+
+def _ratio_box(client) -> dict:
+    return client.get("/model").json()["materials"]["box"]
+
+
+def test_the_model_states_its_box_as_ratios_and_in_kpa(mat_client, abs_client):
+    """GET /model: the ranges as E / E_nominal and, at the nominal scale (the adipose at its nominal E), in kPa; how
+    far each tissue alone may go with the others nominal; and which judgement the model takes."""
+    inputs = {m["tissue"]: m for m in mat_client.get("/model").json()["materials"]["inputs"]}
+    box = _ratio_box(mat_client)
+    assert box["judged_by"] == "ratios" and _ratio_box(abs_client)["judged_by"] == "absolute E"
+    for t, m in inputs.items():
+        lo, hi = m["youngs_kpa_range"]
+        assert box["youngs_kpa_at_nominal_scale"][t] == [lo, hi]
+        np.testing.assert_allclose(box["ratio_to_nominal"][t], [lo / m["nominal_youngs_kpa"], hi / m["nominal_youngs_kpa"]])
+        alone = box["youngs_kpa_alone"][t]
+        assert alone[0] < lo and alone[1] > hi  # the others' ranges let one tissue go further
+    assert "youngs_kpa_alone" not in _ratio_box(abs_client)
+
+
+@pytest.mark.parametrize("k", [1e-3, 0.5, 3.7, 1e3])
+def test_every_stiffness_times_k_gets_the_answer_of_the_stiffness_it_was_scaled_from(mat_client, graph, k):
+    """Judged by ratios: E_i x k for every input tissue (E or a shear-wave speed, their std scaled along) is the same
+    request, answered at the box's point with its ratios nearest the nominal: here theta itself (its mean is 0)."""
+    run, folder = graph
+    markers = folder.regions["markers"]
+    theta = np.array([0.1, -0.1, 0.05, -0.05])
+    nominal = {m.tissue: m.nominal_youngs_kpa for m in folder.manifest.materials.inputs}
+    youngs = {t: nominal[t] * math.exp(th) for t, th in zip(TINY_MATERIALS, theta)}
+    v = math.sqrt(youngs["bladder"] * 1e3 / (2 * 1.495 * 1008.0))
+
+    def body(scale: float) -> dict:
+        return {"prostate": {"youngs_kpa": youngs["prostate"] * scale, "std_percent": 10.0},
+                "rectal_wall": {"youngs_kpa": youngs["rectal_wall"] * scale, "std": 0.3 * youngs["rectal_wall"] * scale},
+                "adipose": {"youngs_kpa": youngs["adipose"] * scale},
+                "bladder": {"shear_wave_speed_m_s": v * math.sqrt(scale), "std_percent": 5.0}}
+
+    scaled = _post(mat_client, region="markers", materials=body(k))
+    assert scaled.status_code == 200, scaled.text  # k far outside every range at the nominal scale
+    reply = _post(mat_client, region="markers", materials=body(1.0)).json()
+    np.testing.assert_allclose(scaled.json()["positions"], reply["positions"], atol=1e-6)
+    np.testing.assert_allclose(scaled.json()["std_mm"], reply["std_mm"], atol=1e-6)
+    u, std = run(theta, [0.1, 0.3, 0.2, 0.1], markers)
+    np.testing.assert_allclose(reply["displacements"], u[0], atol=1e-6)
+    np.testing.assert_allclose(reply["std_mm"], std[0], atol=1e-6)
+
+
+def test_scaling_only_the_given_tissues_changes_their_ratio_to_the_ones_left_nominal(mat_client):
+    """A tissue left out stays at its nominal E: the prostate alone x 1.2 is a stiffer prostate, not the nominal."""
+    prostate = _post(mat_client, region="markers", materials={"prostate": {"youngs_kpa": 65.89 * 1.2}}).json()
+    nominal = _post(mat_client, region="markers").json()
+    assert np.abs(np.subtract(prostate["positions"], nominal["positions"])).max() > 1e-3
+
+
+def test_outside_the_box_a_422_names_the_tissue_and_the_bound_it_crossed(mat_client):
+    """The prostate alone with the others nominal is answered up to youngs_kpa_alone's upper end (GET /model) and
+    refused just past it, naming the prostate, the tissue it is judged against and the box's largest ratio."""
+    box = _ratio_box(mat_client)
+    top = box["youngs_kpa_alone"]["prostate"][1]
+    assert _post(mat_client, region="markers", materials={"prostate": {"youngs_kpa": top * 0.999}}).status_code == 200
+    error = _post(mat_client, region="markers", materials={"prostate": {"youngs_kpa": top * 1.001}}).json()["detail"][0]
+    assert error["field"] == "materials.prostate" and error["type"] == "outside_box"
+    ratios = box["ratio_to_nominal"]
+    # the tissue that limits it: the one whose lower end leaves the prostate least room
+    other = min((t for t in ratios if t != "prostate"), key=lambda t: 1 / ratios[t][0])
+    most = ratios["prostate"][1] / ratios[other][0]
+    assert other in error["message"] and f"the box's {most:.4g} x" in error["message"]
+    assert f"up to x{ratios['prostate'][1]:.4g}" in error["message"]
+    bottom = box["youngs_kpa_alone"]["adipose"][0]
+    assert _post(mat_client, materials={"adipose": {"youngs_kpa": bottom * 1.001}}).status_code == 200
+    soft = _post(mat_client, materials={"adipose": {"youngs_kpa": bottom * 0.999}}).json()["detail"][0]
+    assert soft["field"] == "materials.adipose" and "down to x" in soft["message"]
+
+
+def test_judged_by_absolute_e_scaling_every_stiffness_is_another_request(abs_client, mat_client, graph):
+    """The same tiny model judged by absolute E: every tissue at 0.9 x its lower end is a 422 there and answered by
+    ratios; at 1.02 x its lower end the graph is fed theta itself, unshifted."""
+    run, folder = graph
+    low = {t: {"youngs_kpa": v["youngs_kpa_range"][0] * 0.9} for t, v in TINY_MATERIALS.items()}
+    assert _post(abs_client, materials=low).status_code == 422 and _post(mat_client, materials=low).status_code == 200
+    inside = {t: {"youngs_kpa": v["youngs_kpa_range"][0] * 1.02} for t, v in TINY_MATERIALS.items()}
+    reply = _post(abs_client, region="markers", materials=inside).json()
+    theta = [math.log(inside[m.tissue]["youngs_kpa"] / m.nominal_youngs_kpa) for m in folder.manifest.materials.inputs]
+    u, _ = run(theta, [0.2] * 4, folder.regions["markers"])
+    np.testing.assert_allclose(reply["displacements"], u[0], atol=1e-6)
 
 
 @pytest.mark.parametrize("tissue, valid", [
@@ -92,13 +216,13 @@ def test_a_material_outside_its_range_is_refused_naming_the_field(mat_client, ma
     ({"std": 5.0}, False),
     ({"youngs_kpa": 70.0, "shear_wave_speed_m_s": 4.5}, False),
     ({"std_percent": 10.0, "std": None}, True),
-    ({"youngs_kpa": 70.0, "std": 85.0}, True),  # the tiny scene's prostate: 50..85 kPa
-    ({"youngs_kpa": 70.0, "std": 85.5}, False),  # a std over the range's upper end (1e308 gave inf std_mm)
-    ({"shear_wave_speed_m_s": 4.5, "std": 85.0}, False),  # ... in m/s when the value is a speed
+    ({"youngs_kpa": 70.0, "std": 70.0}, True),
+    ({"youngs_kpa": 0.0}, False),
 ])
 def test_the_schema_and_the_service_agree_on_which_tissue_values_are_given(mat_client, tissue, valid):
     """The OpenAPI schema says what the validator does, null fields included (a client generated from the
-    schema must not send what the service refuses)."""
+    schema must not send what the service refuses). A std over its value (std_over_value) and ratios outside the
+    box (outside_box) are bounds between fields, which JSON schema cannot state: the tests above cover them."""
     schema = mat_client.get("/openapi.json").json()
     prostate = schema["components"]["schemas"]["Material_prostate"]
     assert jsonschema_rs.validator_for(prostate).is_valid(tissue) is valid
@@ -116,7 +240,8 @@ def test_a_model_without_material_inputs_refuses_materials(tiny_client):
 
 def test_the_served_default_model_takes_the_default_scenes_materials(client):
     """models/default lists the four soft tissues of default.toml's [materials], with their ranges; an old client
-    (guide only) gets the nominal answer with the scene's std, and a value outside a range is a 422 naming it."""
+    (guide only) gets the nominal answer with the scene's std, so does every E halved (only ratios count), and ratios
+    outside the box are a 422 naming the tissue."""
     from fem_offline.scene import load_scene
 
     scene = load_scene(Path(__file__).resolve().parents[2] / "fem_offline" / "scenes" / "default.toml")
@@ -129,11 +254,15 @@ def test_the_served_default_model_takes_the_default_scenes_materials(client):
     given = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers",
                                           "materials": nominal}).json()
     assert given["positions"] == old["positions"] and np.asarray(old["std_mm"]).max() > 0
-    low = inputs[0]["youngs_kpa_range"][0] * 0.9
+    halved = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers", "materials": {
+        t: {"youngs_kpa": v["youngs_kpa"] / 2} for t, v in nominal.items()}}).json()  # judged by ratios: nominal
+    assert halved["positions"] == old["positions"]
+    first = inputs[0]["tissue"]
+    low = client.get("/model").json()["materials"]["box"]["youngs_kpa_alone"][first][0] * 0.99
     refused = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0,
-                                            "materials": {inputs[0]["tissue"]: {"youngs_kpa": low}}})
+                                            "materials": {first: {"youngs_kpa": low}}})
     assert refused.status_code == 422
-    assert refused.json()["detail"][0]["field"] == f"materials.{inputs[0]['tissue']}.youngs_kpa"
+    assert refused.json()["detail"][0]["field"] == f"materials.{first}"
 
 
 def test_the_error_budget_names_its_terms_and_adds_them_up(mat_client):
@@ -178,9 +307,10 @@ def test_the_std_is_the_fe_finite_difference_times_the_materials_std(mat_client,
     np.testing.assert_allclose(reply["std_mm"], expected, atol=0.02 * expected.max())
 
 
-def test_openigtlink_takes_the_materials_and_sends_the_std_as_each_points_diameter(tiny_material_model, mat_client):
+def test_openigtlink_takes_the_materials_and_sends_the_2_sigma_sphere_of_predicts_std(tiny_material_model, mat_client):
     """STRING NeedleGuideMaterials sets the stiffnesses for later poses (as /predict's materials); the POINT reply's
-    diameters are 2 |std| of /predict's markers; a bad value is refused by its field and changes nothing."""
+    spheres have radius 2 sigma (diameter 4 |std|) of /predict's markers, the std convention GET /model states and
+    the viewer's scene.json draws its halo by; ratios outside the box are refused by their field and change nothing."""
     import pyigtl
 
     from service.guide import Guide
@@ -196,9 +326,16 @@ def test_openigtlink_takes_the_materials_and_sends_the_std_as_each_points_diamet
     points = responder.answer(predictor, pose)[0]
     reply = _post(mat_client, region="markers", materials=materials).json()
     np.testing.assert_allclose(points.positions, reply["positions"], atol=1e-5)
-    np.testing.assert_allclose(points.diameters, 2 * np.linalg.norm(reply["std_mm"], axis=1), atol=1e-5)
+    sigma = np.linalg.norm(reply["std_mm"], axis=1)
+    assert sigma.min() > 1e-3
+    np.testing.assert_allclose(np.asarray(points.diameters) / 2, 2 * sigma, atol=1e-5)  # radius 2 sigma
+    halo = mat_client.get("/model").json()["materials"]["std"]["halo_sigmas"]
+    assert halo == 2 and mat_client.get("/viewer/scene.json").json()["halo_sigmas"] == halo
+    assert reply["error_budget"]["total_mm"] == pytest.approx(
+        sum(v for k, v in reply["error_budget"].items() if k.endswith("_mm") and k not in ("total_mm", "material_std_mm_max")
+            and v is not None) + halo * sigma.max(), rel=1e-6)
     refused = responder.answer(predictor, pyigtl.StringMessage('{"prostate": {"youngs_kpa": 200}}', device_name=MATERIALS_NAME))
-    assert "materials.prostate.youngs_kpa" in refused[0].string
+    assert "materials.prostate: " in refused[0].string and "the box's" in refused[0].string
     np.testing.assert_allclose(responder.answer(predictor, pose)[0].positions, points.positions)
 
 

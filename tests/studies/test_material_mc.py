@@ -9,11 +9,20 @@ from studies.material_mc import draws, report, run
 from ..conftest import TINY_MATERIALS, tiny_material_scene
 
 
-def test_draws_have_the_stated_sigma_and_stay_inside_the_ranges():
+def test_draws_have_the_services_sigma_and_stay_inside_the_ranges():
+    """The study draws each ln E with the std the service feeds the graph for the scene's std_percent (one
+    conversion, contracts.materials.sigma_ln_e: 20 % is sigma 0.20), and for a request stating that percentage."""
+    from service.materials import material_vectors, materials_request_model
+    from training.materials import materials_info
+
     scene = tiny_material_scene()
     tissues, theta, sigma = draws(scene, 4000, seed=1)
     assert tissues == tuple(TINY_MATERIALS)
-    np.testing.assert_allclose(sigma, np.log1p(0.20))
+    info = materials_info(scene.model_dump(mode="json"))
+    np.testing.assert_allclose(sigma, material_vectors(info, None)[1], rtol=1e-6)
+    stated = materials_request_model(info).model_validate({t: {"std_percent": 20.0} for t in tissues})
+    np.testing.assert_allclose(sigma, material_vectors(info, stated)[1], rtol=1e-6)
+    np.testing.assert_allclose(sigma, 0.20)
     for i, t in enumerate(tissues):
         lo, hi = (np.log(e / scene.tissues[t].youngs) for e in TINY_MATERIALS[t]["youngs_kpa_range"])
         assert lo - 1e-12 <= theta[:, i].min() and theta[:, i].max() <= hi + 1e-12

@@ -223,11 +223,12 @@ function applyMarkers(replies) {
   if (state.halos) applyUncertainty(positions, replies);
 }
 
-// A material model: a translucent 2-sigma halo around each marker (the largest sigma of the frame's replies)
-// and the number in the panel.
+// A material model: a translucent halo around each marker of radius halo_sigmas (scene.json: 2) x sigma, sigma the
+// largest 1-sigma length of the frame's replies (X-Std-Max-Mm); OpenIGTLink sends the same sphere (service/igtl.py)
+// and the error budget counts the same multiple. The number in the panel.
 function applyUncertainty(positions, replies) {
   const sigma = Math.max(...replies.map((r) => r.stdMaxMm).filter((v) => Number.isFinite(v)), 0);
-  const r = Math.max(2 * sigma, 1e-3);
+  const r = Math.max(info.halo_sigmas * sigma, 1e-3);
   for (let i = 0; i < positions.length / 3; i++) {
     state.halos.setMatrixAt(i, MARKER_MATRIX.makeScale(r, r, r).setPosition(positions[3 * i], positions[3 * i + 1],
       positions[3 * i + 2]));
@@ -235,7 +236,8 @@ function applyUncertainty(positions, replies) {
   state.halos.instanceMatrix.needsUpdate = true;
   state.halos.computeBoundingSphere();
   viewer.stdMaxMm = sigma;
-  $('uncertainty').textContent = `uncertainty from the stiffnesses: 1σ up to ${sigma.toFixed(3)} mm (halo: 2σ)`;
+  viewer.haloRadiusMm = r;
+  $('uncertainty').textContent = `uncertainty from the stiffnesses: 1σ up to ${sigma.toFixed(3)} mm (halo: ${info.halo_sigmas}σ)`;
 }
 
 // One slider per tissue stiffness of a material model, E in kPa inside its range, starting at the nominal.
