@@ -15,6 +15,8 @@ from .access_log import JsonAccessLog, json_lines_logger
 from .auth import BearerAuth
 from .batching import Batcher
 from .docs import DOCS_PATHS, STATIC, add_offline_docs
+from .estimate_routes import Closing, estimate_router
+from .estimate_schemas import estimate_field_hints
 from .igtl import igtl_server
 from .info import model_info
 from .limits import PendingLimit, RateLimit
@@ -52,6 +54,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                         observe=app.state.metrics.observe_batch)
             app.state.batcher.start()
         app.state.predictor = predictor
+        app.state.closing = Closing.of(predictor)  # /estimate and /plan
         inline = cheap_keys(predictor, settings.inline_max_ms)
         app.state.serving = Serving(predictor, app.state.batcher, info, inline)
         log.info("decoded on the event loop when idle: %s", ", ".join(sorted(inline)) or "nothing")
@@ -61,7 +64,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         yield
         if igtl is not None:
             igtl.stop()
-        app.state.predictor = app.state.serving = None
+        app.state.predictor = app.state.serving = app.state.closing = None
         if app.state.batcher is not None:
             await app.state.batcher.stop()
             app.state.batcher = None
@@ -75,14 +78,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,  # add_offline_docs serves /docs and /redoc without a CDN
         redoc_url=None,
     )
-    app.state.predictor = app.state.batcher = app.state.serving = None
+    app.state.predictor = app.state.batcher = app.state.serving = app.state.closing = None
     app.state.info = info
     app.state.metrics = Metrics()
-    app.state.field_hints = field_hints(info, settings.max_points)
+    app.state.field_hints = {**estimate_field_hints(info), **field_hints(info, settings.max_points)}
     app.add_exception_handler(RequestValidationError, http.invalid_request)
     app.add_exception_handler(StarletteHTTPException, http.http_problem)
     app.add_exception_handler(OutsideMesh, http.outside_mesh)
     app.include_router(predict_router(predict_request_model(info, settings.max_points)))
+    app.include_router(estimate_router(info, settings.max_points))
     app.include_router(router)
     app.include_router(viewer_router())
     add_offline_docs(app)
