@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Literal, get_args
 
@@ -16,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.guide import push_direction
-from contracts.materials import youngs_from_shear_wave_kpa
+from contracts.materials import sigma_ln_e, youngs_from_shear_wave_kpa
 
 from fem_offline.scene.anatomy import problems as anatomy_problems
 from fem_offline.scene.anatomy import tip_problem
@@ -53,15 +54,39 @@ class Tissue(_Strict):
             shear_wave_speed_m_s=self.shear_wave_speed_m_s, density_kg_m3=self.density_kg_m3, poisson=self.poisson)
 
 
+MEASURED_BOX_SIGMAS = 2.0  # a measured E's box: this many std of ln E either side of the measurement
+
+
 class MaterialInput(_Strict):
     """A tissue whose stiffness the model takes as input: the range it answers for and the default uncertainty.
 
-    The nominal E (theta = 0) is the tissue's own stiffness in [tissues]; it must lie inside the range.
+    The nominal E (theta = 0) is the tissue's own stiffness in [tissues]; it must lie inside the range. A patient's
+    scene may state the measured E instead of a range, `measured_youngs_kpa` with its `std_percent`: the range is
+    then the measurement x exp(-/+ 2 sigma), sigma = std_percent / 100 (contracts.materials.sigma_ln_e), replacing
+    the range and source the scene inherits; the scene keeps the range, not the measurement (it states what the
+    sweep solves). Set the tissue's E in [tissues] to the measurement too: it is the nominal, inside the range.
     """
 
     youngs_kpa_range: tuple[Positive, Positive]
     std_percent: Annotated[float, Field(gt=0, le=100)]  # default 1-sigma measurement uncertainty of E, %
     source: str = ""  # where the range and the uncertainty come from (docs/materials.md)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _measured(cls, data):
+        """measured_youngs_kpa and std_percent -> youngs_kpa_range of +- MEASURED_BOX_SIGMAS sigma of ln E."""
+        if not isinstance(data, dict) or "measured_youngs_kpa" not in data:
+            return data
+        # it replaces a youngs_kpa_range and source, which a patient's scene inherits from the one it extends
+        data = {k: v for k, v in data.items() if k not in ("youngs_kpa_range", "source")}
+        measured = data.pop("measured_youngs_kpa")
+        percent = data.get("std_percent")
+        if not (isinstance(measured, (int, float)) and measured > 0 and isinstance(percent, (int, float)) and 0 < percent <= 100):
+            raise ValueError("measured_youngs_kpa must be a positive E in kPa, with std_percent (0 < % <= 100) its 1-sigma")
+        half = MEASURED_BOX_SIGMAS * sigma_ln_e(std=percent, value=100.0)
+        data["youngs_kpa_range"] = (measured * math.exp(-half), measured * math.exp(half))
+        data["source"] = f"measured {measured:g} kPa, std {percent:g} %: the range is +- {MEASURED_BOX_SIGMAS:g} sigma of ln E"
+        return data
 
     @model_validator(mode="after")
     def _ordered(self) -> MaterialInput:

@@ -137,3 +137,24 @@ def test_a_material_input_outside_its_tissue_is_refused_by_name(materials, field
     """The nominal E outside the range, a bone (held fixed), a tissue the scene does not have."""
     with pytest.raises(SceneError, match=field.replace(".", r"\.")):
         load_scene(SCENES / "tiny.toml", materials=materials)
+
+
+def test_a_patients_measured_stiffness_gets_a_box_of_two_sigma_around_it(tmp_path):
+    """measured_youngs_kpa = 35 with std_percent = 15 (sigma of ln E 0.15): the range is 35 x exp(-/+ 0.3), in place of
+    the one patient.toml inherits from default.toml; the other tissues keep theirs. The tissue's own E must move with
+    it (the nominal lies inside the range), else the scene is refused naming the range."""
+    import math
+
+    base = (f'extends = "{SCENES / "patient.toml"}"\nname = "p"\n[label_map]\npath = "labels.nii.gz"\n'
+            "[label_map.labels]\nprostate = 1\nrectal_wall = 2\n[guide]\ntip_mm = [1.0, -14.0, 35.0]\n"
+            "[materials.prostate]\nmeasured_youngs_kpa = 35.0\nstd_percent = 15.0\n")
+    (tmp_path / "patient.toml").write_text(base + "[tissues.prostate]\nyoungs_kpa = 35.0\n")
+    scene, default = load_scene(tmp_path / "patient.toml"), load_scene(SCENES / "default.toml")
+    lo, hi = scene.materials["prostate"].youngs_kpa_range
+    assert (lo, hi) == pytest.approx((35.0 * math.exp(-0.3), 35.0 * math.exp(0.3)))
+    assert math.log(hi / 35.0) == pytest.approx(2 * 0.15) and "measured 35 kPa" in scene.materials["prostate"].source
+    assert scene.materials["adipose"] == default.materials["adipose"]
+    assert parse_scene(scene.model_dump(mode="json")).materials == scene.materials  # the dumped scene states the range
+    (tmp_path / "stale.toml").write_text(base)  # the prostate's E left at the default's 65.89 kPa
+    with pytest.raises(SceneError, match=r"materials\.prostate\.youngs_kpa_range"):
+        load_scene(tmp_path / "stale.toml")
