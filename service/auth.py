@@ -22,9 +22,15 @@ class BearerAuth:
         self.tokens = [token.encode() for token in sorted(tokens)]
 
     async def __call__(self, scope, receive, send):
-        if scope["type"] != "http" or self._open(scope["path"]):
+        if scope["type"] not in ("http", "websocket") or self._open(scope["path"]):
             return await self.app(scope, receive, send)
         token = _bearer(dict(scope["headers"]).get(b"authorization", b""))
+        if scope["type"] == "websocket":  # the estimate stream: the same tokens, refused at the handshake (HTTP 403)
+            if token is None or not self._accepted(token):
+                await receive()  # websocket.connect
+                return await send({"type": "websocket.close", "code": 1008})
+            scope.setdefault("state", {})[CLIENT] = "token:" + hashlib.sha256(token).hexdigest()[:12]
+            return await self.app(scope, receive, send)
         if token is None:
             reply = error_reply(401, [("authorization", "authorization: send `Authorization: Bearer <token>`",
                                        "missing_token")], headers={"WWW-Authenticate": 'Bearer realm="deform"'})

@@ -78,3 +78,15 @@ def test_refusals_are_counted_in_metrics(locked):
 
 def test_without_tokens_nothing_is_asked(client):
     assert client.get("/model").status_code == 200 and client.get("/metrics").status_code == 200
+
+
+def test_the_estimate_stream_asks_for_the_same_tokens(locked):
+    from starlette.websockets import WebSocketDisconnect
+
+    with pytest.raises(WebSocketDisconnect) as refused:
+        with locked.websocket_connect("/estimate/stream"):
+            pass
+    assert refused.value.code == 1008
+    with locked.websocket_connect("/estimate/stream", headers={"Authorization": "Bearer s3cret-a"}) as ws:
+        ws.send_json({"markers": [{"index": 0}]})
+        assert ws.receive_json()["detail"][0]["field"].startswith("markers.0")
