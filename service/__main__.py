@@ -1,6 +1,8 @@
 """`python -m service --model models/default --host 127.0.0.1 --port 8000`: serve a model folder.
 
 `python -m service export --model M --displacement-mm D --angle-deg B --out case.vtu`: write a deformed mesh.
+
+`python -m service estimate|plan --model M --body request.json`: POST /estimate or /plan offline, the reply on stdout.
 """
 
 from __future__ import annotations
@@ -14,10 +16,14 @@ import tempfile
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["export"]:  # the only subcommand; every other argument list serves, as before
+    if argv[:1] == ["export"]:  # a subcommand; every other argument list serves, as before
         from .export_cli import main as export_main
 
         return export_main(argv[1:])
+    if argv[:1] in (["estimate"], ["plan"]):  # POST /estimate and /plan, offline (service/estimate_cli.py)
+        from .estimate_cli import main as estimate_main
+
+        return estimate_main(argv[0], argv[1:])
     from pydantic import ValidationError
 
     from .igtl import IgtlError
