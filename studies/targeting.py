@@ -13,9 +13,10 @@ truth). Reported per configuration: the displaced-lesion error (median, 95th per
 95 % region holds the FE lesion, how often the fit is flagged, and the baselines: the forward model at the true
 (d, beta) and nominal stiffness, and "no deformation" (the lesion where it was planned).
 
-Planning (the first --plan-points solved points): POST /plan's aim (service/aim.py) for the first lesion at the
-point's d and the stiffness estimated from all markers at 0.2 mm, then a fresh FE solve at the planned pose and at
-naive aiming's pose: the needle ray's distance from the FE-displaced lesion at each.
+Planning (the first --plan-points solved points): POST /plan's aim (service/aim.py) at the point's d and the
+stiffness estimated from all markers at 0.2 mm, for the lesion it brings closest (most lie off the guide's tilt
+plane, out of any pose's reach), then a fresh FE solve at the planned pose and at naive aiming's pose: the needle
+ray's distance from the FE-displaced lesion at each.
 
 Each solve is saved under --out (point_NNN.npz, plan_NNN.npz) and never repeated; --solved-only evaluates what is
 there without solving more (the JSON says how many of n were solved).
@@ -171,9 +172,10 @@ def _summary(out: dict, forward: np.ndarray, still: np.ndarray, *, n_lesions: in
         "no_deformation": {"median_mm": float(np.median(still)), "p95_mm": float(np.percentile(still, 95))}}}
 
 
-def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.ndarray, lesion: np.ndarray, *,
+def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.ndarray, lesions: np.ndarray, *,
                solve_missing: bool, seed: int) -> dict | None:
-    """Aim at `lesion` with the point's d and the stiffness estimated from its markers; the FE at both poses."""
+    """Aim with the point's d and the stiffness estimated from its markers at the lesion the plan brings closest
+    (most lie off the guide's tilt plane, out of reach); the FE at the planned and the naive pose."""
     from service import aim
     from service.estimate import StateSpace, point_set
     from service.guide import Guide
@@ -182,10 +184,13 @@ def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.nd
     pts = point_set(predictor, node_ids=markers, points=np.zeros((0, 3)))
     observed = pts.reference + pts.weights @ u[pts.nodes] + np.random.default_rng(seed + 3 + k).normal(0, 0.2, (len(markers), 3))
     theta = _estimate(predictor, space, pts, len(markers), observed, 0.2, None).x[2:]
-    one = point_set(predictor, node_ids=markers[:0], points=lesion[None])
-    result = aim.plan(predictor, space, guide, one, theta=theta, theta_std=np.zeros_like(theta),
-                      displacement_mm=float(state[0]))
-    row = {"point": k, "displacement_mm": float(state[0]), "planned_angle_deg": result.best.angle_deg,
+    options = []
+    for i, lesion in enumerate(lesions):
+        one = point_set(predictor, node_ids=markers[:0], points=lesion[None])
+        options.append((aim.plan(predictor, space, guide, one, theta=theta, theta_std=np.zeros_like(theta),
+                                 displacement_mm=float(state[0])), i, one))
+    result, i, one = min(options, key=lambda o: o[0].best.miss_mm)
+    row = {"point": k, "lesion": i, "displacement_mm": float(state[0]), "planned_angle_deg": result.best.angle_deg,
            "predicted_miss_mm": result.best.miss_mm, "reachable": result.reachable,
            "naive_angle_deg": result.naive.angle_deg, "predicted_naive_miss_mm": result.naive.miss_mm}
     for key, pose in (("planned", result.best), ("naive", result.naive)):
@@ -208,16 +213,19 @@ def run(model: Path, *, n: int, seed: int, n_lesions: int, draws: int, plan_poin
     states, lesions = draw_points(folder.manifest, n, seed), lesion_points(folder, n_lesions, seed)
     out.mkdir(parents=True, exist_ok=True)
     fresh, unsolved, plans = {}, [], []
-    for k, state in enumerate(tqdm(states, desc="fresh FE", unit="solve")):
+    # the plan checks interleaved with the points (the first plan_points solved points), so a run stopped early
+    # has some of each
+    for k, state in enumerate(tqdm(states, desc="fresh FE points", unit="point")):
         u = solved(out / f"point_{k:03d}.npz", folder, state, solve_missing=solve_missing)
-        if u is not None:
-            fresh[k] = u
-        elif (out / f"point_{k:03d}.npz").exists():
-            unsolved.append(k)
-    for k in list(fresh)[:plan_points]:
-        row = plan_check(folder, predictor, out, k, states[k], fresh[k], lesions[0], solve_missing=solve_missing, seed=seed)
-        if row is not None:
-            plans.append(row)
+        if u is None:
+            if (out / f"point_{k:03d}.npz").exists():
+                unsolved.append(k)
+            continue
+        fresh[k] = u
+        if len(fresh) <= plan_points:
+            row = plan_check(folder, predictor, out, k, state, u, lesions, solve_missing=solve_missing, seed=seed)
+            if row is not None:
+                plans.append(row)
     data = {"model": folder.manifest.name, "n_points": n, "n_solved": len(fresh), "unsolved": unsolved,
             "seed": seed, "draws_per_point": draws, "lesions_mm": lesions.round(3).tolist(),
             "states": [{"point": k, "displacement_mm": float(s[0]), "angle_deg": float(s[1]),
@@ -252,10 +260,10 @@ def report(data: dict) -> str:
         reach = sum(p["reachable"] for p in data["plans"])
         lines += ["", f"Planning at {len(data['plans'])} points ({reach} reachable): the planned needle path passes "
                   f"within {PLAN_TOL_MM} mm of the FE-displaced lesion at {ok} of {reach}.", "",
-                  "| point | d (mm) | planned β | predicted miss | FE miss, planned | naive β | FE miss, naive |",
-                  "|---|---|---|---|---|---|---|"]
+                  "| point | lesion | d (mm) | planned β | predicted miss | FE miss, planned | naive β | FE miss, naive |",
+                  "|---|---|---|---|---|---|---|---|"]
         for p in data["plans"]:
-            lines.append(f"| {p['point']} | {p['displacement_mm']:.2f} | {p['planned_angle_deg']:.2f} | "
+            lines.append(f"| {p['point']} | {p['lesion']} | {p['displacement_mm']:.2f} | {p['planned_angle_deg']:.2f} | "
                          f"{p['predicted_miss_mm']:.3f} mm | {p['fe_planned_miss_mm']:.3f} mm | {p['naive_angle_deg']:.2f} | "
                          f"{p['fe_naive_miss_mm']:.3f} mm |")
     return "\n".join(lines) + "\n"
