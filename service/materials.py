@@ -10,8 +10,8 @@ A tissue left out is at its nominal E with the scene's stated uncertainty (`std_
 sending only (d, beta) gets the nominal answer. The graph takes theta = ln(E / E_nominal) and sigma = the std of
 ln E (contracts.materials.sigma_ln_e: std(E) / E, or 2 std(v_s) / v_s, to first order).
 
-A model judged by ratios (MaterialsInfo.by_ratios: every load-bearing tissue an input) takes any E > 0: the
-request is judged by its ratios, and the graph answers at the box's point with those ratios nearest the nominal
+A model judged by ratios (MaterialsInfo.by_ratios: every load-bearing tissue an input) takes any E within
+RATIO_SPAN of the nominal: the request is judged by its ratios, and the graph answers at the box's point with those ratios nearest the nominal
 (contracts.materials.ratio_point), so every E x k gets the answer of E; ratios no point of the box has are a 422
 naming a tissue and the bound it crossed (`materials.prostate`, type outside_box). Otherwise each value must lie
 inside its declared range (422 naming e.g. `materials.prostate.youngs_kpa`).
@@ -32,12 +32,15 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 from pydantic_core import PydanticCustomError
 
-from contracts.materials import (HALO_SIGMAS, MaterialInput, MaterialsInfo, OutsideBox, ratio_point, sigma_ln_e,
-                                 youngs_from_shear_wave_kpa)
+from contracts.materials import (HALO_SIGMAS, MaterialInput, MaterialsInfo, OutsideBox, ratio_point,
+                                 shear_wave_from_youngs_m_s, sigma_ln_e, youngs_from_shear_wave_kpa)
 from contracts.model import ModelManifest
 
 NO_MATERIALS = "this model takes no material inputs"
 STD_SIGMAS = HALO_SIGMAS  # total_mm counts the material uncertainty at 2 std, as the viewer and OpenIGTLink draw it
+# judged by ratios, a value may be this factor off its nominal either way: a common scale of 1e-6 .. 1e6 is far past
+# any measurement, and ln E and the ratios stay finite (E = 5e-324 gave ln 0, and 1e307 an overflowing ratio)
+RATIO_SPAN = 1e6
 
 
 def _given(*names: str) -> dict:
@@ -82,15 +85,21 @@ def _number(what: str, **bounds):
 
 
 def _tissue_model(m: MaterialInput, *, by_ratios: bool) -> type[TissueValueBase]:
-    """One tissue's request model: any E > 0 when judged by ratios (the box is checked on the whole request), else
-    inside its declared range."""
+    """One tissue's request model: any E within RATIO_SPAN of the nominal when judged by ratios (the box is checked on
+    the whole request), else inside its declared range."""
     (e_lo, e_hi), (v_lo, v_hi) = m.youngs_kpa_range, m.shear_wave_range_m_s
     v_lo, v_hi = math.floor(v_lo * 1e4) / 1e4, math.ceil(v_hi * 1e4) / 1e4  # the E range's ends stay inside
-    if by_ratios:
-        e_kw, v_kw = {"gt": 0}, {"gt": 0}
-        e_what = (f"Young's modulus, kPa > 0, judged with the others by ratios (GET /model: materials.box; at the "
-                  f"nominal scale {e_lo:g}..{e_hi:g} kPa, nominal {m.nominal_youngs_kpa:g})")
-        v_what = f"shear-wave speed, m/s > 0 (eq. 1), judged by ratios (at the nominal scale {v_lo:g}..{v_hi:g} m/s)"
+    if by_ratios:  # any common scale within RATIO_SPAN of the nominal: finite theta and ratios for every value
+        e_lo, e_hi = m.nominal_youngs_kpa / RATIO_SPAN, m.nominal_youngs_kpa * RATIO_SPAN
+        v_lo, v_hi = (shear_wave_from_youngs_m_s(youngs_kpa=e, density_kg_m3=m.density_kg_m3, poisson=m.poisson)
+                      for e in (e_lo, e_hi))
+        v_lo, v_hi = math.ceil(v_lo * 1e6) / 1e6, math.floor(v_hi * 1e4) / 1e4  # their E stays inside e_lo..e_hi
+        e_kw, v_kw = {"ge": e_lo, "le": e_hi}, {"ge": v_lo, "le": v_hi}
+        (b_lo, b_hi) = m.youngs_kpa_range
+        e_what = (f"Young's modulus, kPa, judged with the others by ratios (GET /model: materials.box; at the "
+                  f"nominal scale {b_lo:g}..{b_hi:g} kPa, nominal {m.nominal_youngs_kpa:g}); any value within "
+                  f"{RATIO_SPAN:g} x of the nominal either way is a valid field")
+        v_what = f"shear-wave speed, m/s (eq. 1), judged by ratios; {v_lo:g}..{v_hi:g} m/s is a valid field"
     else:
         e_kw, v_kw = {"ge": e_lo, "le": e_hi}, {"ge": v_lo, "le": v_hi}
         e_what = f"Young's modulus, {e_lo:g}..{e_hi:g} kPa (nominal {m.nominal_youngs_kpa:g})"

@@ -99,8 +99,9 @@ def field_hints(info: ModelInfo, max_points: int) -> dict[str, str]:
         "points": f"1 to {max_points} points, each [x, y, z] in mm inside the mesh, within "
                   f"{[round(v, 2) for v in lo]} to {[round(v, 2) for v in hi]}",
         "materials": NO_MATERIALS if info.materials is None else (
-            ("per tissue youngs_kpa or shear_wave_speed_m_s > 0, judged by their ratios (GET /model: materials.box), "
-             "optional std_percent or std up to the value; at the nominal scale: " if info.materials.by_ratios else
+            ("per tissue youngs_kpa or shear_wave_speed_m_s within 1e6 x of the nominal, judged by their ratios "
+             "(GET /model: materials.box), optional std_percent or std up to the value; at the nominal scale: "
+             if info.materials.by_ratios else
              "per tissue youngs_kpa or shear_wave_speed_m_s inside its range, optional std_percent or std: ")
             + "; ".join(f"{m.tissue} {m.youngs_kpa_range[0]:g}..{m.youngs_kpa_range[1]:g} kPa" for m in info.materials.inputs)),
     }
