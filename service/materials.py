@@ -213,9 +213,12 @@ def box(info: MaterialsInfo) -> dict:
         out["ratio_to_nominal"][m.tissue] = [math.exp(lo[i]), math.exp(hi[i])]
         out["youngs_kpa_at_nominal_scale"][m.tissue] = list(m.youngs_kpa_range)
     if info.by_ratios:  # one tissue moved, the others at their nominal E: the shifts the others allow widen its range
-        out["youngs_kpa_alone"] = {m.tissue: [m.nominal_youngs_kpa * math.exp(lo[i] + max([-h for j, h in enumerate(hi) if j != i], default=0.0)),
-                                              m.nominal_youngs_kpa * math.exp(hi[i] + min([-l for j, l in enumerate(lo) if j != i], default=0.0))]
-                                   for i, m in enumerate(info.inputs)}
+        out["youngs_kpa_alone"] = {}
+        for i, m in enumerate(info.inputs):
+            shift_lo = max([-h for j, h in enumerate(hi) if j != i], default=0.0)  # c >= theta_j - hi_j, theta_j = 0
+            shift_hi = min([-l for j, l in enumerate(lo) if j != i], default=0.0)  # c <= theta_j - lo_j
+            out["youngs_kpa_alone"][m.tissue] = [m.nominal_youngs_kpa * math.exp(lo[i] + shift_lo),
+                                                 m.nominal_youngs_kpa * math.exp(hi[i] + shift_hi)]
     return out
 
 

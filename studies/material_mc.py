@@ -5,10 +5,10 @@
 
 At a guide position of a material sweep (a grid point), each tissue's theta_i = ln(E_i / E_i,nominal) is drawn
 independently from a normal distribution with the std the scene states (std_percent, as the service reads it:
-contracts.materials.sigma_ln_e, sigma_i = std_percent / 100), clipped to the declared range, n times. Each draw is solved afresh (the continuation
-of fem_offline.material_cases, from the nominal state at that position). Per node, the standard deviation of the
-n fresh displacements (per component, then the largest over x, y, z) is compared with the first-order one,
-sqrt(sum_i sigma_i^2 S_i^2), where sigma_i is the std of the draws actually made (the clipping narrows them):
+contracts.materials.sigma_ln_e, sigma_i = std_percent / 100), clipped to the declared range, n times. Each draw is
+solved afresh (the continuation of fem_offline.material_cases, from the nominal state at that position). Per node,
+the standard deviation of the n fresh displacements (per component, then the largest over x, y, z) is compared with
+the first-order one, sqrt(sum_i sigma_i^2 S_i^2), where sigma_i is the std of the draws actually made (the clipping narrows them):
 the largest gap and the ratio at the markers, on the prostate surface and at every node. The served model's
 displacement_std (--model, at the same sigma) is compared the same way. With n draws, a sample std is itself
 uncertain by about 1 / sqrt(2 (n - 1)) of its size (15 % at n = 24): the table says so. Each draw (solved or not) is saved
