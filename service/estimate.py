@@ -35,7 +35,8 @@ DIFF_STEP = (0.01, 0.01, 0.1)  # central-difference steps: mm, deg, ln E (exact 
 GRID = (9, 9)  # the (d, beta) grid the fit starts from when there is no previous state
 MAX_ITERATIONS = 40
 RCOND = 1e-5  # singular values of the scaled Jacobian below this fraction of the largest: directions not moved along
-STEP_TOL = 1e-6  # relative step (mm, deg, ln E) at which the fit has converged
+STEP_TOL = 1e-6  # relative step (mm, deg, ln E) at which the fit has converged, whatever the std
+STEP_SIGMA = 1e-4  # a step under this fraction of each parameter's std: converged
 
 
 @dataclass(frozen=True)
@@ -159,20 +160,17 @@ def _residual(problem: Problem, x: np.ndarray, pos: np.ndarray, jac: np.ndarray)
     return np.concatenate([r_obs, r_prior]), np.vstack([j_obs, j_prior])
 
 
-def _cost(problem: Problem, x: np.ndarray, pos: np.ndarray) -> float:
-    r, _ = _residual(problem, x, pos, np.zeros((len(pos), 3, len(x))))
-    return float(r @ r)
-
-
 def start(predictor: Predictor, space: StateSpace, problem: Problem) -> np.ndarray:
     """The best state of a (d, beta) grid over the envelope, stiffnesses at their prior mean (or nominal)."""
     theta = np.where(np.isfinite(problem.prior_std[2:]), problem.prior_mean[2:], 0.0)
     d, b = np.meshgrid(np.linspace(space.lower[0], space.upper[0], GRID[0]),
                        np.linspace(space.lower[1], space.upper[1], GRID[1]), indexing="ij")
     states = np.column_stack([d.ravel(), b.ravel(), np.tile(theta, (d.size, 1))])
-    obs = PointSet(problem.points.nodes, problem.points.weights[:problem.n_obs], problem.points.reference[:problem.n_obs])
-    pos = positions(predictor, space, obs, states)
-    costs = [_cost(problem, x, p) for x, p in zip(states, pos)]
+    k = problem.n_obs
+    obs = PointSet(problem.points.nodes, problem.points.weights[:k], problem.points.reference[:k])
+    pos = positions(predictor, space, obs, states)  # (grid, k, 3)
+    costs = ((((pos - problem.observed) / problem.noise_mm[:, None]) ** 2).sum(axis=(1, 2))
+             + (((states - problem.prior_mean) / problem.prior_std) ** 2).sum(axis=1))  # inf std: 0
     return states[int(np.argmin(costs))]
 
 
@@ -185,7 +183,7 @@ def estimate(predictor: Predictor, space: StateSpace, problem: Problem, x0: np.n
     cost, lam, converged, it = float(r @ r), 1e-3, False, 0
     for it in range(1, MAX_ITERATIONS + 1):
         step = _bounded_step(space, x, j, r, lam)
-        if np.all(np.abs(step) <= STEP_TOL * (1 + np.abs(x))):  # at the minimum (to the decode's float32)
+        if _negligible(space, step, x, j):
             converged = True
             break
         x_new = np.clip(x + step, space.lower, space.upper)  # clip: rounding only, the step stays inside
@@ -193,7 +191,7 @@ def estimate(predictor: Predictor, space: StateSpace, problem: Problem, x0: np.n
         r_new, j_new = _residual(problem, x_new, pos_new, jac_new)
         cost_new = float(r_new @ r_new)
         if cost_new <= cost:
-            small = np.all(np.abs(x_new - x) <= STEP_TOL * (1 + np.abs(x))) or cost - cost_new <= 1e-10 * (1 + cost)
+            small = _negligible(space, x_new - x, x, j) or cost - cost_new <= 1e-10 * (1 + cost)
             x, pos, jac, r, j, cost, lam = x_new, pos_new, jac_new, r_new, j_new, cost_new, max(lam / 10, 1e-9)
             if small:
                 converged = True
@@ -204,6 +202,13 @@ def estimate(predictor: Predictor, space: StateSpace, problem: Problem, x0: np.n
                 converged = True
                 break
     return _laplace(space, problem, x, pos, jac, r, j, it, converged)
+
+
+def _negligible(space: StateSpace, step: np.ndarray, x: np.ndarray, j: np.ndarray) -> bool:
+    """Whether a step is nothing: under STEP_SIGMA of each parameter's std (the Laplace covariance's), or at the
+    decode's float32 resolution."""
+    std = np.sqrt(np.diag(np.linalg.inv(j.T @ j + np.diag(space.envelope_precision()))))
+    return bool(np.all(np.abs(step) <= np.maximum(STEP_SIGMA * std, STEP_TOL * (1 + np.abs(x)))))
 
 
 def _bounded_step(space: StateSpace, x: np.ndarray, j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:

@@ -200,8 +200,10 @@ def estimate_router(info: ModelInfo, max_points: int) -> APIRouter:
     async def estimate_stream(websocket: WebSocket):
         """Each text frame an /estimate body, each answer its reply (or {"detail": [...]}); a fit starts from the
         previous frame's state."""
-        await websocket.accept()
         closing, state = websocket.app.state.closing, None
+        if closing is None:  # not loaded yet: try again later
+            return await websocket.close(code=1013)
+        await websocket.accept()
         try:
             while True:
                 text = await websocket.receive_text()
