@@ -37,6 +37,7 @@ MAX_ITERATIONS = 40
 RCOND = 1e-5  # singular values of the scaled Jacobian below this fraction of the largest: directions not moved along
 STEP_TOL = 1e-6  # relative step (mm, deg, ln E) at which the fit has converged, whatever the std
 STEP_SIGMA = 1e-4  # a step under this fraction of each parameter's std: converged
+REJECTED_SIGMA = 1e-2  # a step this small that does not lower the cost: converged (float32 noise decides there)
 
 
 @dataclass(frozen=True)
@@ -198,17 +199,18 @@ def estimate(predictor: Predictor, space: StateSpace, problem: Problem, x0: np.n
                 break
         else:
             lam *= 10
-            if lam > 1e8:  # no step lowers the cost: a (bounded) minimum
+            # no step lowers the cost: a (bounded) minimum, or steps so small the float32 decode's noise decides
+            if lam > 1e8 or _negligible(space, step, x, j, sigmas=REJECTED_SIGMA):
                 converged = True
                 break
     return _laplace(space, problem, x, pos, jac, r, j, it, converged)
 
 
-def _negligible(space: StateSpace, step: np.ndarray, x: np.ndarray, j: np.ndarray) -> bool:
-    """Whether a step is nothing: under STEP_SIGMA of each parameter's std (the Laplace covariance's), or at the
-    decode's float32 resolution."""
+def _negligible(space: StateSpace, step: np.ndarray, x: np.ndarray, j: np.ndarray, *, sigmas: float = 0.0) -> bool:
+    """Whether a step is nothing: under STEP_SIGMA (or `sigmas`) of each parameter's std (the Laplace
+    covariance's), or at the decode's float32 resolution."""
     std = np.sqrt(np.diag(np.linalg.inv(j.T @ j + np.diag(space.envelope_precision()))))
-    return bool(np.all(np.abs(step) <= np.maximum(STEP_SIGMA * std, STEP_TOL * (1 + np.abs(x)))))
+    return bool(np.all(np.abs(step) <= np.maximum(max(STEP_SIGMA, sigmas) * std, STEP_TOL * (1 + np.abs(x)))))
 
 
 def _bounded_step(space: StateSpace, x: np.ndarray, j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
