@@ -72,8 +72,9 @@ def problem_of(closing: Closing, body: BaseModel) -> tuple[Problem, list[str]]:
     """The fit's problem from a validated /estimate body, and the name of each observation (markers.i, points.i)."""
     markers, points = getattr(body, "markers", None) or [], body.points or []
     if not markers and not points:
-        raise RequestProblem(422, field="markers" if len(closing.markers) else "points", type="missing",
-                             message=("markers" if len(closing.markers) else "points") + ": give at least one tracked marker (markers) or point (points)")
+        field = "markers" if len(closing.markers) else "points"
+        raise RequestProblem(422, field=field, type="missing",
+                             message=f"{field}: give at least one tracked marker (markers) or point (points)")
     targets = body.targets or []
     refs = [p.reference_mm for p in points] + list(targets)
     pts = _located(closing, node_ids=closing.markers[[m.index for m in markers]], points=np.array(refs).reshape(-1, 3),
