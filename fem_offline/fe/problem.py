@@ -112,7 +112,8 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     pattern = build_pattern(tets[active], len(mesh.nodes), np.flatnonzero(~constrained))
     surface = None
     if scene.effects.guide_contact:
-        surface = ct.build_surface(mesh, basis.mesh, tets, active, scene.guide)
+        surface = ct.build_surface(mesh, basis.mesh, tets, active, scene.guide,
+                                   wall_youngs_kpa=scene.tissues["rectal_wall"].youngs if "rectal_wall" in scene.tissues else 0.0)
     body = None
     if scene.effects.gravity:
         N = np.stack([basis.basis[a][0].value for a in range(10)])[:, active]  # (10, n_active, n_qp)

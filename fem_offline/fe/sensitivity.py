@@ -11,8 +11,9 @@ K_T the exact tangent at u (contact curvature included). f_i is taken as r(u; E_
 that linearity, so every element variant is covered by the residual that the solver itself uses.
 
 With the guide prescribing displacements and gravity off, scaling every E by one factor leaves u unchanged:
-only stiffness ratios matter, and sum_i S_i = 0 over the assembled tissues (exactly with the glued patch;
-with the tip in contact up to the compliance of its penalty, contact_stiffness_kpa_mm).
+only stiffness ratios matter, and sum_i S_i = 0 over the assembled tissues: exactly with the glued patch, and with
+the tip in contact when its penalty scales with the wall's E (guide.contact_stiffness_per_mm); with a fixed penalty
+(contact_stiffness_kpa_mm) up to its compliance.
 """
 
 from __future__ import annotations
@@ -60,7 +61,13 @@ def stiffened(problem: Problem, tissues: tuple[str, ...] | None = None) -> Stiff
 
 def tissue_force(models: Stiffened, loaded: Problem, u: np.ndarray, name: str) -> np.ndarray:
     """f_i(u) (n_dofs,): d r / d ln E_i at u, with the guide and contact load of `loaded`."""
-    twice = replace(models.doubled[name], contact_load=loaded.contact_load)
+    twice = models.doubled[name]
+    load = loaded.contact_load
+    if load is not None and twice.contact.stiffness != loaded.contact.stiffness:
+        # a penalty that scales with the wall's E (guide.contact_stiffness_per_mm): its multipliers scale with it, so
+        # the contact force is of degree one in E like the tissues' forces, and sum_i f_i = r(u) exactly
+        load = load._replace(multipliers=load.multipliers * (twice.contact.stiffness / loaded.contact.stiffness))
+    twice = replace(twice, contact_load=load)
     return residual(twice, u).r - residual(loaded, u).r
 
 

@@ -194,6 +194,10 @@ class Guide(_Strict):
     # effects.guide_contact (contact.py): the rigid rounded tip, a sphere touching the wall at the tip
     tip_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
     contact_stiffness_kpa_mm: Annotated[float, Field(gt=0, le=1e8)] = 3e4  # augmented-Lagrangian penalty k
+    # When set, k = contact_stiffness_per_mm x the rectal wall's E instead (kPa/mm): the penalty scales with the
+    # tissue it touches, so every E x s (k x s with it) gives the same u and the sensitivities sum to zero
+    # (fe/sensitivity.py). None: the fixed contact_stiffness_kpa_mm.
+    contact_stiffness_per_mm: Annotated[float, Field(gt=0, le=1e6)] | None = None
     contact_tol_mm: Annotated[float, Field(gt=0, le=1)] = 0.005  # largest penetration left in a solution
 
     @model_validator(mode="after")
@@ -387,7 +391,8 @@ class Scene(_Strict):
 
 # (section, field) -> the value that reproduces what the scene meant before the field existed
 _LATER_FIELDS = {(None, "label_map"): None, ("guide", "snap_mm"): None, ("guide", "snap_to"): "node",
-                 ("guide", "tip_radius_mm"): 6.0, ("guide", "contact_stiffness_kpa_mm"): 3e4, ("guide", "contact_tol_mm"): 0.005,
+                 ("guide", "tip_radius_mm"): 6.0, ("guide", "contact_stiffness_kpa_mm"): 3e4,
+                 ("guide", "contact_stiffness_per_mm"): None, ("guide", "contact_tol_mm"): 0.005,
                  ("effects", "guide_contact"): False, ("label_map", "facet_distance_voxels"): 0.5,
                  ("solver", "volumetric"): "pointwise", ("mesh", "surface_near_tip_mm"): None,
                  (None, "materials"): None}

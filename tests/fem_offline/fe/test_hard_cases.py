@@ -1,0 +1,62 @@
+"""The patient box's hardest corner and the ratio invariance, with the element and the contact penalty the hard-cases
+study names as the new formulation (studies/hard_cases.py): P2/P0 mean dilatation, k scaled with the wall's E."""
+
+import numpy as np
+import pytest
+
+from fem_offline.fe.continuation import solve_path
+from fem_offline.fe.problem import build_problem
+from fem_offline.fe.sensitivity import sensitivities, stiffened
+from studies.hard_cases import CONTACT_PER_MM, at_factors, formulation, worst_volume
+
+HARDEST = {"prostate": 0.4, "adipose": 0.5, "rectal_wall": 1.2, "bladder": 3.0}  # soft gland and fat, stiff wall
+
+
+def _contact(scene, step_mm: float):
+    return scene.model_copy(update={"effects": scene.effects.model_copy(update={"guide_contact": True}),
+                                    "solver": scene.solver.model_copy(update={"max_step_mm": step_mm})})
+
+
+@pytest.mark.slow
+def test_the_hardest_corner_solves_to_the_full_push_without_a_collapsing_element(tiny_scene, tiny_mesh):
+    """Taylor-Hood stops near 6.5 mm here with one adipose element at det F 0.03 (docs: Hard cases); P2/P0 solves
+    all 10 mm with every tet keeping most of its volume."""
+    scene = at_factors(formulation(_contact(tiny_scene, 0.5), "mean_dilatation"), HARDEST)
+    problem = build_problem(scene, tiny_mesh)
+    (d, u, stats), = solve_path(problem, [10.0], 0.0)
+    worst = worst_volume(problem, u)
+    assert d == 10.0 and stats.penetration_mm <= scene.guide.contact_tol_mm
+    assert worst["min_volume_ratio"] > 0.9 and worst["min_det_f"] > 0.4
+
+
+@pytest.fixture(scope="module")
+def scaled_contact(tiny_scene, tiny_mesh):
+    """P2/P0, the tip in contact with the scaled penalty, 2 mm at beta = 10 deg in 1 mm steps."""
+    scene = formulation(_contact(tiny_scene, 1.0), "mean_dilatation")
+    problem = build_problem(scene, tiny_mesh)
+    (d, u, _, state), = solve_path(problem, [2.0], 10.0, with_state=True)
+    return scene, problem, problem.at_guide(d, 10.0, state.multipliers), state.u
+
+
+def test_the_penalty_follows_the_wall(scaled_contact, tiny_mesh):
+    scene, problem, _, _ = scaled_contact
+    assert problem.contact.stiffness == pytest.approx(CONTACT_PER_MM * scene.tissues["rectal_wall"].youngs)
+    softer = build_problem(at_factors(scene, {"rectal_wall": 0.1}), tiny_mesh)
+    assert softer.contact.stiffness == pytest.approx(0.1 * problem.contact.stiffness)
+
+
+def test_every_stiffness_times_k_gives_the_same_u_with_the_tip_in_contact(scaled_contact, tiny_mesh):
+    """u(3 E) = u(E) to 1e-6 of |u|: the penalty and its multipliers scale with the tissues."""
+    scene, _, _, u = scaled_contact
+    stiffer = build_problem(at_factors(scene, dict.fromkeys(("prostate", "adipose", "rectal_wall", "bladder"), 3.0)),
+                            tiny_mesh)
+    (_, u3, _), = solve_path(stiffer, [2.0], 10.0)
+    assert np.abs(u3.ravel() - u).max() < 1e-6 * np.abs(u).max()
+
+
+def test_the_sensitivities_sum_to_zero_with_the_tip_in_contact(scaled_contact):
+    _, problem, loaded, u = scaled_contact
+    sens = sensitivities(stiffened(problem), loaded, u)
+    largest = max(np.abs(s).max() for s in sens.values())
+    assert largest > 1e-3 * np.abs(u).max()
+    assert np.abs(sum(sens.values())).max() < 1e-5 * largest
