@@ -4,7 +4,9 @@
 
 The box is a product of stiffness factors of the nominal E (prostate x0.4-1.6, adipose x0.5-1.6, rectal wall
 x0.1-1.2, bladder x0.3-3 by default): its 16 corners and the centres of its 8 faces (one tissue at an end, the
-others at the geometric centre of their ranges), each at beta = -10, 0 and 10 deg. Each is a load-stepped path from
+others at the geometric centre of their ranges), each at beta = 0 and 10 deg. The phantom is mirror-symmetric, so
+beta = -10 deg is the mirror image of +10 (tests/fem_offline/fe/test_contact.py::test_mirror_symmetry_with_contact):
+the same push reached, the same det F, mirrored; --angles -10 0 10 solves it anyway. Each is a load-stepped path from
 rest to the scene's largest push (default.toml: 10 mm in 0.25 mm steps, halved on failure) on the served model's
 mesh, once per element:
 
@@ -98,8 +100,9 @@ def worst_volume(problem, u: np.ndarray) -> dict:
 
 
 def solve_one(scene_path: str, mesh_path: str | None, element: str, factors: dict[str, float], angle_deg: float,
-              scale: float = 1.0) -> dict:
-    """One path from rest to the scene's largest push: what it reached and what it cost."""
+              scale: float = 1.0, probes: np.ndarray | None = None) -> dict:
+    """One path from rest to the scene's largest push: what it reached and what it cost; with `probes` (k, 3), u
+    interpolated there (mm) as "probes_mm"."""
     from fem_offline.fe.continuation import solve_path
     from fem_offline.fe.newton import ConvergenceError
     from fem_offline.fe.problem import build_problem
@@ -130,6 +133,10 @@ def solve_one(scene_path: str, mesh_path: str | None, element: str, factors: dic
         row["failure"] = str(exc)
     row.update(solved=row["reached_mm"] >= row["target_mm"] - 1e-9, seconds=time.perf_counter() - t0,
                **worst_volume(problem, u))
+    if probes is not None:
+        from studies.convergence import at_points
+
+        row["probes_mm"] = at_points(mesh, np.reshape(u, (-1, 3)), probes).tolist()
     return row
 
 
@@ -160,6 +167,102 @@ def run(out: Path, elements, angles, workers: int, scene: Path, mesh: Path | Non
                 path.write_text(json.dumps(row, indent=1) + "\n")
                 log.info("%s %s beta %g: reached %.4g mm", row["element"], name, row["angle_deg"], row["reached_mm"])
     return collect(out, elements)
+
+
+# The GCI's points: the nominal stiffnesses and the box's hardest corner (soft gland and fat, stiff wall and bladder)
+GCI_POINTS = {"nominal": {"prostate": 1.0, "adipose": 1.0, "rectal_wall": 1.0, "bladder": 1.0},
+              "hardest corner": {"prostate": 0.4, "adipose": 0.5, "rectal_wall": 1.2, "bladder": 3.0}}
+
+
+def run_gci(out: Path, element: str, scales: list[float], workers: int, scene: Path, angle_deg: float = 0.0) -> dict:
+    """Each GCI point at the full push on the scene meshed at every size x scale (coarsest first); the observed
+    order, Richardson estimate and GCI (studies.convergence) of the smallest det F, the smallest tet volume ratio and
+    the markers' displacement (at models/default's marker positions)."""
+    from tqdm import tqdm
+
+    from contracts.mesh import read_mesh
+
+    from studies.convergence import field_gci, richardson
+
+    markers = read_mesh(MESH)
+    markers = markers.nodes[markers.node_sets["markers"]]
+    folder = out / "gci" / element
+    folder.mkdir(parents=True, exist_ok=True)
+    todo = [(name, s) for name in GCI_POINTS for s in scales if not (folder / f"{name.replace(' ', '_')}_x{s:g}.json").exists()]
+    if todo:
+        os.environ.setdefault("MKL_NUM_THREADS", "1" if workers > 1 else os.environ.get("MKL_NUM_THREADS", "2"))
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(solve_one, str(scene), None, element, GCI_POINTS[name], angle_deg, s, markers): (name, s)
+                       for name, s in todo}
+            for f in tqdm(as_completed(futures), total=len(futures), desc="GCI", unit="solve"):
+                name, s = futures[f]
+                (folder / f"{name.replace(' ', '_')}_x{s:g}.json").write_text(json.dumps(f.result(), indent=1) + "\n")
+    report = {}
+    for name in GCI_POINTS:
+        rows = [json.loads((folder / f"{name.replace(' ', '_')}_x{s:g}.json").read_text()) for s in scales]
+        if len(rows) < 3 or not all(r["solved"] for r in rows):
+            report[name] = {"levels": rows, "analysis": "a level did not solve; no GCI"}
+            continue
+        ratio = (scales[0] / scales[1], scales[1] / scales[2])
+        one = {}
+        for key in ("min_det_f", "min_volume_ratio"):
+            r = richardson(*(x[key] for x in rows[-3:]), ratio)
+            one[key] = {"values": list(r.values), "kind": r.kind, "order": r.order, "extrapolated": r.extrapolated,
+                        "gci_fine": r.gci_fine}
+        band, mean = field_gci(*(np.array(x["probes_mm"]) for x in rows[-3:]), ratio)
+        one["markers_mm"] = {"gci_fine_max_mm": float(band.max()), "kind": mean.kind, "order": mean.order,
+                             "fine_max_abs_mm": float(np.linalg.norm(rows[-1]["probes_mm"], axis=1).max())}
+        report[name] = {"levels": [{k: x[k] for k in ("n_tets", "seconds", "min_det_f", "min_volume_ratio",
+                                                       "min_det_f_at", "reached_mm", "newton_iterations")} for x in rows],
+                        "scales": scales, **one}
+    return report
+
+
+def run_cost(out: Path, elements, workers: int, scene: Path, mesh: Path | None) -> dict:
+    """Each element's solve of the nominal stiffnesses at 10 mm, beta 0 on the model's mesh: seconds and work."""
+    folder = out / "cost"
+    folder.mkdir(parents=True, exist_ok=True)
+    todo = [e for e in elements if not (folder / f"{e}.json").exists()]
+    if todo:
+        os.environ.setdefault("MKL_NUM_THREADS", "1" if workers > 1 else os.environ.get("MKL_NUM_THREADS", "2"))
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(solve_one, str(scene), str(mesh) if mesh else None, e, GCI_POINTS["nominal"], 0.0): e
+                       for e in todo}
+            for f in as_completed(futures):
+                (folder / f"{futures[f]}.json").write_text(json.dumps(f.result(), indent=1) + "\n")
+    return {e: json.loads((folder / f"{e}.json").read_text()) for e in elements}
+
+
+def cost_markdown(cost: dict) -> str:
+    lines = ["## The element's cost (nominal stiffnesses, 10 mm, beta 0, the model's mesh; solved side by side)", "",
+             "| element | seconds | load steps | Newton iterations | factorisations | min det F | min theta_e |",
+             "|---|---|---|---|---|---|---|"]
+    for e, r in cost.items():
+        lines.append(f"| {e} | {r['seconds']:.0f} | {r['load_steps']} | {r['newton_iterations']} | "
+                     f"{r['factorizations']} | {r['min_det_f']:.3f} | {r['min_volume_ratio']:.3f} |")
+    return "\n".join(lines)
+
+
+def gci_markdown(gci: dict, element: str) -> str:
+    lines = [f"## Grid convergence of the worst element ({element}, 10 mm, beta 0)", "",
+             "| point | tets | min det F | min theta_e | seconds |", "|---|---|---|---|---|"]
+    for name, g in gci.items():
+        for lv in g["levels"]:
+            lines.append(f"| {name} | {lv['n_tets']:,} | {lv['min_det_f']:.4f} | {lv['min_volume_ratio']:.4f} | "
+                         f"{lv['seconds']:.0f} |")
+    lines += ["", "| point | quantity | kind | order | extrapolated | GCI (fine) |", "|---|---|---|---|---|---|"]
+    for name, g in gci.items():
+        if isinstance(g.get("analysis"), str):
+            lines.append(f"| {name} | {g['analysis']} | | | | |")
+            continue
+        for key in ("min_det_f", "min_volume_ratio"):
+            q = g[key]
+            lines.append(f"| {name} | {key} | {q['kind']} | {q['order']:.2f} | {q['extrapolated']:.4f} | "
+                         f"{q['gci_fine']:.4f} |")
+        m = g["markers_mm"]
+        lines.append(f"| {name} | markers' displacement (mm) | {m['kind']} | {m['order']:.2f} | max |u| "
+                     f"{m['fine_max_abs_mm']:.3f} | {m['gci_fine_max_mm']:.4f} mm |")
+    return "\n".join(lines)
 
 
 def collect(out: Path, elements) -> list[dict]:
@@ -207,18 +310,39 @@ def markdown(rows: list[dict], box: dict, angles) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m studies hard-cases", description=__doc__.splitlines()[0])
     ap.add_argument("--elements", nargs="+", choices=ELEMENTS, default=list(ELEMENTS), help="elements, in this order")
-    ap.add_argument("--angles", nargs="+", type=number("--angles"), default=[-10.0, 0.0, 10.0], help="beta (deg)")
+    ap.add_argument("--angles", nargs="+", type=number("--angles"), default=[0.0, 10.0],
+                    help="beta (deg; default 0 10: -10 mirrors 10 on the symmetric phantom)")
     ap.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="processes (default 2)")
     ap.add_argument("--scene", type=Path, default=SCENE)
     ap.add_argument("--mesh", type=Path, default=MESH, help="the mesh to solve on (default: models/default's)")
     ap.add_argument("--out", type=Path, default=Path("runs/hard_cases"), help="one JSON per solve (resumable)")
+    ap.add_argument("--gci", nargs=3, type=number("--gci"), metavar="SCALE",
+                    help="also the GCI of the nominal point and the hardest corner on the scene meshed at these size "
+                         "multipliers, coarsest first (e.g. 1.3 1 0.769), with the first element")
+    ap.add_argument("--cost", action="store_true", help="also each element's solve at the nominal stiffnesses")
+    ap.add_argument("--cases", action=argparse.BooleanOptionalAction, default=True,
+                    help="solve the box's points (--no-cases: only --cost and --gci)")
+    ap.add_argument("--no-solve", action="store_true", help="publish the solves already in --out; start none")
     ap.add_argument("--publish", action="store_true", help="write docs/results/hard_cases.json")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    rows = run(args.out, args.elements, args.angles, args.workers, args.scene, args.mesh)
+    if args.no_solve or not args.cases:
+        rows = collect(args.out, args.elements)
+    else:
+        rows = run(args.out, args.elements, args.angles, args.workers, args.scene, args.mesh)
+    rows = [r for r in rows if r["angle_deg"] in args.angles]
     report = markdown(rows, BOX, args.angles)
+    data = {"box": BOX, "contact_stiffness_per_mm": CONTACT_PER_MM, "rows": rows}
+    if args.cost and not args.no_solve:
+        data["cost"] = run_cost(args.out, args.elements, args.workers, args.scene, args.mesh)
+    elif (args.out / "cost").exists():
+        data["cost"] = {p.stem: json.loads(p.read_text()) for p in sorted((args.out / "cost").glob("*.json"))}
+    if data.get("cost"):
+        report += "\n\n" + cost_markdown(data["cost"])
+    if args.gci:
+        data["gci"] = run_gci(args.out, args.elements[0], list(args.gci), args.workers, args.scene)
+        report += "\n\n" + gci_markdown(data["gci"], args.elements[0])
     print(report)
-    path = results.write("hard_cases", {"box": BOX, "contact_stiffness_per_mm": CONTACT_PER_MM, "rows": rows,
-                                        "report_md": report}, publish=args.publish)
+    path = results.write("hard_cases", {**data, "report_md": report}, publish=args.publish)
     print(f"\nwrote {path}")
     return 0
