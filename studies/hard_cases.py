@@ -2,18 +2,19 @@
 
     python -m studies hard-cases [--elements mean_dilatation taylor_hood] [--workers 2] [--publish]
 
-The box is a product of stiffness factors of the nominal E (prostate x0.4-1.6, adipose x0.5-1.6, rectal wall
-x0.1-1.2, bladder x0.3-3 by default): its 16 corners and the centres of its 8 faces (one tissue at an end, the
+The box is a product of stiffness factors of the nominal E, the scene's [materials] ranges over its tissues' E
+(fem_offline/scenes/patient_box.toml: prostate x0.4-1.6, adipose x0.5-1.6, rectal wall x0.1-1.2, bladder x0.3-3): its 16 corners and the centres of its 8 faces (one tissue at an end, the
 others at the geometric centre of their ranges), each at beta = 0 and 10 deg. The phantom is mirror-symmetric, so
 beta = -10 deg is the mirror image of +10 (tests/fem_offline/fe/test_contact.py::test_mirror_symmetry_with_contact):
 the same push reached, the same det F, mirrored; --angles -10 0 10 solves it anyway. Each is a load-stepped path from
 rest to the scene's largest push (default.toml: 10 mm in 0.25 mm steps, halved on failure) on the served model's
 mesh, once per element:
 
-- "mean_dilatation": P2 displacement with a constant pressure and volume ratio per tet (the three-field u-p-J
-  element of Simo, Taylor and Pister, condensed per element; fe/elasticity.py), and a contact penalty that scales
-  with the rectal wall's E (guide.contact_stiffness_per_mm);
-- "taylor_hood": P2 displacement with a continuous P1 pressure per tissue (fe/mixed.py), the fixed penalty.
+- "mean_dilatation", the scene's: P2 displacement with a constant pressure and volume ratio per tet (the three-field
+  u-p-J element of Simo, Taylor and Pister, condensed per element; fe/elasticity.py), and a contact penalty that
+  scales with the rectal wall's E (guide.contact_stiffness_per_mm);
+- "taylor_hood", models/default's: P2 displacement with a continuous P1 pressure per tissue (fe/mixed.py), the fixed
+  penalty.
 
 Per solve it records whether it reached the full push, the largest push reached, load steps and halvings, Newton
 iterations, the smallest det F at the quadrature points and the smallest tet volume ratio theta_e = v_e / V_e, with
@@ -40,16 +41,24 @@ from studies import results
 
 log = logging.getLogger(__name__)
 
-# The patient box as factors of the nominal E (issue: shear-wave elastography in patients; docs/materials.md).
-BOX = {"prostate": (0.4, 1.6), "adipose": (0.5, 1.6), "rectal_wall": (0.1, 1.2), "bladder": (0.3, 3.0)}
-# k / E_rectal_wall of the new formulation: default.toml's fixed 3e4 kPa/mm at the nominal wall (172.61 kPa)
-CONTACT_PER_MM = 3e4 / 172.61
 ELEMENTS = ("mean_dilatation", "taylor_hood")
-SCENE = Path("fem_offline/scenes/default.toml")
-MESH = Path("models/default/mesh.npz")
+SCENE = Path("fem_offline/scenes/patient_box.toml")
+MESH = Path("models/default/mesh.npz")  # patient_box.toml meshes as default.toml does
 
 
-def box_points(box: dict[str, tuple[float, float]] = BOX) -> list[tuple[str, dict[str, float]]]:
+ORDER = ("prostate", "adipose", "rectal_wall", "bladder")  # the order of a corner's signs, other tissues after
+
+
+def box_of(scene) -> dict[str, tuple[float, float]]:
+    """The scene's material ranges as factors of each tissue's nominal E (12 significant digits), in ORDER."""
+    if not scene.materials:
+        raise ValueError("--scene: the scene has no [materials]; there is no box to solve")
+    names = sorted(scene.materials, key=lambda t: ORDER.index(t) if t in ORDER else len(ORDER))
+    return {t: tuple(float(f"{e / scene.tissues[t].youngs:.12g}") for e in scene.materials[t].youngs_kpa_range)
+            for t in names}
+
+
+def box_points(box: dict[str, tuple[float, float]]) -> list[tuple[str, dict[str, float]]]:
     """(name, factor per tissue): the 2^m corners, then the 2m face centres (one tissue at an end, the others at
     the geometric centre of their ranges)."""
     names = list(box)
@@ -63,10 +72,11 @@ def box_points(box: dict[str, tuple[float, float]] = BOX) -> list[tuple[str, dic
     return points
 
 
-def formulation(scene, element: str):
-    """The scene with the element and its contact penalty: the new formulation scales the penalty with the wall."""
-    guide = scene.guide.model_copy(update={"contact_stiffness_per_mm": CONTACT_PER_MM if element == "mean_dilatation"
-                                           else None})
+def formulation(scene, element: str, contact_per_mm: float | None = None):
+    """The scene with the element; Taylor-Hood with the fixed contact penalty (models/default's formulation), the
+    other elements with k = contact_per_mm x the wall's E (default: the scene's guide.contact_stiffness_per_mm)."""
+    per_mm = contact_per_mm if contact_per_mm is not None else scene.guide.contact_stiffness_per_mm
+    guide = scene.guide.model_copy(update={"contact_stiffness_per_mm": None if element == "taylor_hood" else per_mm})
     return scene.model_copy(update={"solver": scene.solver.model_copy(update={"volumetric": element}), "guide": guide})
 
 
@@ -144,8 +154,7 @@ def job_name(point: str, angle_deg: float) -> str:
     return f"{point.replace(' ', '_').replace('+', 'p').replace('-', 'm')}_b{angle_deg:+g}.json"
 
 
-def run(out: Path, elements, angles, workers: int, scene: Path, mesh: Path | None,
-        box: dict = BOX) -> list[dict]:
+def run(out: Path, elements, angles, workers: int, scene: Path, mesh: Path | None, box: dict) -> list[dict]:
     """Solve every (element, point, beta) not yet in `out`; return every row found there."""
     from tqdm import tqdm
 
@@ -326,13 +335,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--publish", action="store_true", help="write docs/results/hard_cases.json")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
+    from fem_offline.scene import load_scene
+
+    base = load_scene(args.scene)
+    box = box_of(base)
     if args.no_solve or not args.cases:
         rows = collect(args.out, args.elements)
     else:
-        rows = run(args.out, args.elements, args.angles, args.workers, args.scene, args.mesh)
+        rows = run(args.out, args.elements, args.angles, args.workers, args.scene, args.mesh, box)
     rows = [r for r in rows if r["angle_deg"] in args.angles]
-    report = markdown(rows, BOX, args.angles)
-    data = {"box": BOX, "contact_stiffness_per_mm": CONTACT_PER_MM, "rows": rows}
+    report = markdown(rows, box, args.angles)
+    data = {"scene": str(args.scene), "box": box, "contact_stiffness_per_mm": base.guide.contact_stiffness_per_mm,
+            "rows": rows}
     if args.cost and not args.no_solve:
         data["cost"] = run_cost(args.out, args.elements, args.workers, args.scene, args.mesh)
     elif (args.out / "cost").exists():

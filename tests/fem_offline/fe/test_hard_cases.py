@@ -1,5 +1,5 @@
-"""The patient box's hardest corner and the ratio invariance, with the element and the contact penalty the hard-cases
-study names as the new formulation (studies/hard_cases.py): P2/P0 mean dilatation, k scaled with the wall's E."""
+"""The patient box's hardest corner and the ratio invariance, with the element and the contact penalty of
+fem_offline/scenes/patient_box.toml (studies/hard_cases.py): P2/P0 mean dilatation, k scaled with the wall's E."""
 
 import numpy as np
 import pytest
@@ -7,9 +7,18 @@ import pytest
 from fem_offline.fe.continuation import solve_path
 from fem_offline.fe.problem import build_problem
 from fem_offline.fe.sensitivity import sensitivities, stiffened
-from studies.hard_cases import CONTACT_PER_MM, at_factors, formulation, worst_volume
+from fem_offline.scene import load_scene
+from studies.hard_cases import GCI_POINTS, SCENE, at_factors, box_of, formulation, worst_volume
 
-HARDEST = {"prostate": 0.4, "adipose": 0.5, "rectal_wall": 1.2, "bladder": 3.0}  # soft gland and fat, stiff wall
+HARDEST = GCI_POINTS["hardest corner"]  # soft gland and fat, stiff wall and bladder
+PATIENT_BOX = load_scene(SCENE)
+CONTACT_PER_MM = PATIENT_BOX.guide.contact_stiffness_per_mm
+
+
+def test_the_hardest_corner_is_a_corner_of_the_patient_box():
+    box = box_of(PATIENT_BOX)
+    assert PATIENT_BOX.solver.volumetric == "mean_dilatation" and CONTACT_PER_MM is not None
+    assert all(HARDEST[t] in box[t] for t in box)
 
 
 def _contact(scene, step_mm: float):
@@ -21,7 +30,7 @@ def _contact(scene, step_mm: float):
 def test_the_hardest_corner_solves_to_the_full_push_without_a_collapsing_element(tiny_scene, tiny_mesh):
     """Taylor-Hood stops near 6.5 mm here with one adipose element at det F 0.03 (docs: Hard cases); P2/P0 solves
     all 10 mm with every tet keeping most of its volume."""
-    scene = at_factors(formulation(_contact(tiny_scene, 0.5), "mean_dilatation"), HARDEST)
+    scene = at_factors(formulation(_contact(tiny_scene, 0.5), "mean_dilatation", CONTACT_PER_MM), HARDEST)
     problem = build_problem(scene, tiny_mesh)
     (d, u, stats), = solve_path(problem, [10.0], 0.0)
     worst = worst_volume(problem, u)
@@ -32,7 +41,7 @@ def test_the_hardest_corner_solves_to_the_full_push_without_a_collapsing_element
 @pytest.fixture(scope="module")
 def scaled_contact(tiny_scene, tiny_mesh):
     """P2/P0, the tip in contact with the scaled penalty, 2 mm at beta = 10 deg in 1 mm steps."""
-    scene = formulation(_contact(tiny_scene, 1.0), "mean_dilatation")
+    scene = formulation(_contact(tiny_scene, 1.0), "mean_dilatation", CONTACT_PER_MM)
     problem = build_problem(scene, tiny_mesh)
     (d, u, _, state), = solve_path(problem, [2.0], 10.0, with_state=True)
     return scene, problem, problem.at_guide(d, 10.0, state.multipliers), state.u

@@ -15,7 +15,7 @@ EXPECTED = {
     "paper_scale.toml": ("taylor_hood", True),
     "grid_study_base.toml": ("pointwise", True),
     "patient.toml": ("pointwise", True),
-    "patient_box.toml": ("taylor_hood", True),
+    "patient_box.toml": ("mean_dilatation", True),
     "tiny.toml": ("pointwise", False),
     "anatomy/small.toml": ("pointwise", True),
     "anatomy/medium.toml": ("pointwise", True),
