@@ -4,8 +4,8 @@
         [--plan-points 10] [--out runs/targeting] [--solved-only] [--publish]
 
 At n random points inside the model's envelope (d, beta uniform; each tissue's ln E normal with the scene's std,
-clipped to its range) the model's own scene (the manifest's) is solved afresh on the model's mesh, load-stepped
-from rest. At each point the markers are observed with Gaussian noise (draws per point) and POST /estimate's fit
+clipped to its range) the model's own scene (the manifest's) is solved afresh on the model's mesh: Newton at the
+point from the served model's field, or load-stepped from rest where that does not converge (each file says which). At each point the markers are observed with Gaussian noise (draws per point) and POST /estimate's fit
 (service/estimate.py) predicts the lesions: points inside the prostate that are not nodes (centroids of random
 prostate tets, fixed by the seed). Configurations: 0.2 mm noise with all markers and with every other one, 0.5 mm
 with all, and 0.2 mm with all plus an encoder prior on (d, beta) (0.5 mm, 1 deg, centred on a draw around the
@@ -36,6 +36,8 @@ from tqdm import tqdm
 
 from studies import results
 
+log = logging.getLogger(__name__)
+
 ENCODER_STD = (0.5, 1.0)  # the guide prior's std: mm, deg
 CONFIGS = ({"name": "0.2 mm, 8 markers", "noise_mm": 0.2, "markers": "all", "prior": False},
            {"name": "0.2 mm, 4 markers", "noise_mm": 0.2, "markers": "half", "prior": False},
@@ -65,8 +67,13 @@ def lesion_points(folder, k: int, seed: int) -> np.ndarray:
     return folder.nodes[folder.tets[pick][:, :4]].mean(axis=1)
 
 
-def solve(folder, state: np.ndarray) -> np.ndarray:
-    """The model's scene with E_i = E_i,nominal exp(theta_i), solved on its mesh at (d, beta): u (n_nodes, 3)."""
+def solve(folder, predictor, state: np.ndarray) -> tuple[np.ndarray, str]:
+    """The model's scene with E_i = E_i,nominal exp(theta_i), solved on its mesh at (d, beta): (u (n_nodes, 3), the
+    start). Newton starts at (d, beta) from the served model's field, as off-grid cases start from the sweep's
+    (fem_offline/cases.py: the equilibrium does not depend on the path, up to the contact tolerance); when that
+    does not converge in one step, the path from rest."""
+    from fem_offline.cases import solve_from
+    from fem_offline.fe.newton import ConvergenceError
     from fem_offline.fe.problem import build_problem
     from fem_offline.fe.solve import solve_case
     from fem_offline.material_cases import scaled_scene
@@ -74,11 +81,25 @@ def solve(folder, state: np.ndarray) -> np.ndarray:
 
     scene = parse_scene(folder.manifest.scene.spec)
     tissues = tuple(folder.manifest.materials.tissues) if folder.manifest.materials is not None else ()
-    u, _ = solve_case(build_problem(scaled_scene(scene, tissues, state[2:]), folder.mesh), float(state[0]), float(state[1]))
-    return np.asarray(u).reshape(-1, 3)
+    problem = build_problem(scaled_scene(scene, tissues, state[2:]), folder.mesh)
+    d, beta = float(state[0]), float(state[1])
+    if not problem.superposable:
+        if tissues:
+            materials = np.zeros((1, 2, len(tissues)), dtype=np.float32)
+            materials[0, 0] = state[2:]
+            start, _ = predictor.decode_std(state[None, :2], None, materials)
+        else:
+            start = predictor.decode(state[None, :2])
+        try:
+            u, _ = solve_from(problem, start[0].astype(np.float64).ravel(), d, beta)
+            return np.asarray(u).reshape(-1, 3), "model"
+        except ConvergenceError as exc:
+            log.warning("%g mm, %g deg: the start from the model did not converge (%s); solving from rest", d, beta, exc)
+    u, _ = solve_case(problem, d, beta)
+    return np.asarray(u).reshape(-1, 3), "rest"
 
 
-def solved(path: Path, folder, state: np.ndarray, *, solve_missing: bool) -> np.ndarray | None:
+def solved(path: Path, folder, predictor, state: np.ndarray, *, solve_missing: bool) -> np.ndarray | None:
     """u of `state`, from `path` when saved for this state, else solved and saved; None if it found no equilibrium
     (saved too) or, with solve_missing False, when not saved."""
     from contracts.files import atomic_savez
@@ -91,11 +112,11 @@ def solved(path: Path, folder, state: np.ndarray, *, solve_missing: bool) -> np.
     if not solve_missing:
         return None
     try:
-        u = solve(folder, state)
+        u, started = solve(folder, predictor, state)
     except ConvergenceError as exc:
         atomic_savez(path, state=state, why=str(exc))
         return None
-    atomic_savez(path, state=state, u=u)
+    atomic_savez(path, state=state, u=u, started_from=started)
     return u
 
 
@@ -194,7 +215,7 @@ def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.nd
     for key, pose in (("planned", result.best), ("naive", result.naive)):
         path = out / f"plan_{k:03d}_{key}_lesion{i}.npz"
         fe_state = _saved_pose(path, np.concatenate([[pose.displacement_mm, pose.angle_deg], state[2:]]))
-        fe = solved(path, folder, fe_state, solve_missing=solve_missing)
+        fe = solved(path, folder, predictor, fe_state, solve_missing=solve_missing)
         if fe is None:
             return None
         d, beta = np.array([fe_state[0]]), np.array([fe_state[1]])
@@ -230,7 +251,7 @@ def run(model: Path, *, n: int, seed: int, n_lesions: int, draws: int, plan_poin
     # the plan checks interleaved with the points (the first plan_points solved points), so a run stopped early
     # has some of each
     for k, state in enumerate(tqdm(states, desc="fresh FE points", unit="point")):
-        u = solved(out / f"point_{k:03d}.npz", folder, state, solve_missing=solve_missing)
+        u = solved(out / f"point_{k:03d}.npz", folder, predictor, state, solve_missing=solve_missing)
         if u is None:
             if (out / f"point_{k:03d}.npz").exists():
                 unsolved.append(k)
