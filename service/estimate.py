@@ -70,6 +70,31 @@ class StateSpace:
         return 12.0 / np.maximum(self.upper - self.lower, 1e-9) ** 2
 
 
+def model_sigma_mm(predictor: Predictor, points: np.ndarray) -> np.ndarray:
+    """(k,) the model's own error at reference points, 1 sigma: half the manifest's bound (as the error budget
+    counts 2 sigma) of the model against its own FE, over the stiffness ranges for a material model (materials
+    accuracy: model_mm), else the surrogate's; the markers' bound for a point in the prostate (the markers are
+    prostate nodes), every node's elsewhere. The FE's discretisation error is not in it: it is the same bias at
+    every state (the reply's error budget states it)."""
+    m = predictor.manifest
+    mat = m.materials.accuracy if m.materials is not None else None
+
+    def bound(region: str) -> float:
+        if mat is not None and region in mat.regions:
+            return mat.regions[region].model_mm
+        acc = m.accuracy.regions.get(region) or m.accuracy.regions.get("all_nodes")
+        return acc.surrogate_mm if acc is not None else 0.0
+
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return np.zeros(0)
+    tet, _ = predictor.locator.locate(points)
+    tissues = m.mesh.tissues
+    inside = (tet >= 0) & ("prostate" in tissues) & (predictor.folder.mesh.tissue[np.maximum(tet, 0)]
+                                                     == (tissues.index("prostate") if "prostate" in tissues else -1))
+    return np.where(inside, bound("markers"), bound("all_nodes")) / 2.0
+
+
 @dataclass(frozen=True)
 class PointSet:
     """Reference points read from decoded nodes: position_k = reference_k + weights[k] @ u(nodes)."""
@@ -127,6 +152,7 @@ class Problem:
     noise_mm: np.ndarray  # (n_obs,) 1-sigma per coordinate
     prior_mean: np.ndarray  # (n,) ; used where prior_std is finite
     prior_std: np.ndarray  # (n,) ; inf: no prior on that parameter
+    target_sigma_mm: np.ndarray | None = None  # (t,) the model's own error at each target, 1 sigma (model_sigma_mm)
 
 
 @dataclass(frozen=True)
@@ -251,6 +277,8 @@ def _laplace(space, problem, x, pos, jac, r, j, iterations, converged) -> Estima
     k = problem.n_obs
     jt = jac[k:]  # (t, 3, n)
     target_cov = np.einsum("tan,nm,tbm->tab", jt, cov, jt)
+    if problem.target_sigma_mm is not None:
+        target_cov = target_cov + problem.target_sigma_mm[:, None, None] ** 2 * np.eye(3)
     normalised = (((pos[:k] - problem.observed) / problem.noise_mm[:, None]) ** 2).sum(axis=1)
     chi2, dof = float(r @ r), len(r) - len(x)
     p_value = float(stats.chi2.sf(chi2, dof)) if dof > 0 else None

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from . import aim
-from .estimate import Estimate, Problem, StateSpace, estimate, point_set
+from .estimate import Estimate, Problem, StateSpace, estimate, model_sigma_mm, point_set
 from .estimate_schemas import EstimateReply, PlanReply, estimate_request_model, plan_request_model
 from .guide import Guide
 from .http import RequestProblem
@@ -92,7 +92,8 @@ def problem_of(closing: Closing, body: BaseModel) -> tuple[Problem, list[str]]:
         theta, sigma = closing.stiffness_prior(getattr(body, "materials", None))
         mean[2:], std[2:] = theta, np.maximum(sigma, MIN_THETA_STD)
     names = [f"markers.{i}" for i in range(len(markers))] + [f"points.{i}" for i in range(len(points))]
-    return Problem(pts, len(observed), observed, noise, mean, std), names
+    sigma = model_sigma_mm(closing.predictor, np.array(list(targets)).reshape(-1, 3))
+    return Problem(pts, len(observed), observed, noise, mean, std, sigma), names
 
 
 def estimate_reply(closing: Closing, problem: Problem, names: list[str], fit: Estimate) -> dict:

@@ -108,7 +108,8 @@ class Parameter(BaseModel):
 class Target(BaseModel):
     reference_mm: list[float]
     position_mm: list[float] = Field(description="displaced position at the estimated state, mm")
-    std_mm: list[float] = Field(description="1-sigma of x, y, z from the state's posterior, mm")
+    std_mm: list[float] = Field(description="1-sigma of x, y, z, mm: the state's posterior and the model's own error "
+                                            "at the point (half its bound against its own FE)")
     error_budget_mm: float = Field(description="the model's bound at points (surrogate + FE discretisation, "
                                                "+ the material first order for a material model), mm")
     total_mm: float = Field(description="error_budget_mm + 2 x the largest std's length: a 2-sigma bound, mm")

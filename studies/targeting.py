@@ -15,9 +15,9 @@ truth). Reported per configuration: the displaced-lesion error (median, 95th per
 (d, beta) and nominal stiffness, and "no deformation" (the lesion where it was planned).
 
 Planning (the first --plan-points solved points): POST /plan's aim (service/aim.py) at the point's d and the
-stiffness estimated from all markers at 0.2 mm, for the lesion it brings closest (most lie off the guide's tilt
-plane, out of any pose's reach), then a fresh FE solve at the planned pose and at naive aiming's pose: the needle
-ray's distance from the FE-displaced lesion at each.
+stiffness estimated from all markers at 0.2 mm, at a lesion within reach (a prostate point on the guide's tilt
+plane: the random lesions mostly lie off it, out of every pose's reach), then a fresh FE solve at the planned pose
+and at naive aiming's pose: the needle ray's distance from the FE-displaced lesion at each.
 
 Each solve is saved under --out (point_NNN.npz, plan_NNN.npz) and never repeated; --solved-only evaluates what is
 there without solving more (the JSON says how many of n were solved).
@@ -131,7 +131,7 @@ def solved(path: Path, folder, predictor, state: np.ndarray, *, solve_missing: b
 
 
 def _estimate(predictor, space, pts, n_obs, observed, noise_mm, prior):
-    from service.estimate import Problem, estimate
+    from service.estimate import Problem, estimate, model_sigma_mm
 
     n = len(space.names)
     mean, std = np.zeros(n), np.full(n, np.inf)
@@ -139,7 +139,8 @@ def _estimate(predictor, space, pts, n_obs, observed, noise_mm, prior):
         std[2:] = [m.std_percent / 100.0 for m in predictor.manifest.materials.inputs]
     if prior is not None:
         mean[:2], std[:2] = prior, ENCODER_STD
-    return estimate(predictor, space, Problem(pts, n_obs, observed, np.full(n_obs, noise_mm), mean, std))
+    sigma = model_sigma_mm(predictor, pts.reference[n_obs:])  # as POST /estimate adds it to each target's std
+    return estimate(predictor, space, Problem(pts, n_obs, observed, np.full(n_obs, noise_mm), mean, std, sigma))
 
 
 def _covered(err: np.ndarray, cov: np.ndarray) -> bool:
@@ -203,10 +204,27 @@ def _summary(out: dict, forward: np.ndarray, still: np.ndarray, *, n_lesions: in
         "no_deformation": {"median_mm": float(np.median(still)), "p95_mm": float(np.percentile(still, 95))}}}
 
 
-def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.ndarray, lesions: np.ndarray, *,
+def plan_lesion(folder, predictor, k: int, seed: int) -> np.ndarray:
+    """(3,) a prostate point that some pose's needle ray passes through at rest: on the guide's tilt plane, at an
+    angle inside 0.8 of the envelope's and 4 to 30 mm past the tip (the random lesions mostly lie off that plane,
+    out of every pose's reach)."""
+    from service.guide import Guide
+
+    guide, rng = Guide.of(folder.manifest), np.random.default_rng(seed + 100 + k)
+    prostate = folder.manifest.mesh.tissues.index("prostate")
+    lo, hi = folder.manifest.envelope.angle_deg
+    for _ in range(1000):
+        p = guide.tip_mm + rng.uniform(4.0, 30.0) * guide.direction(0.8 * rng.uniform(lo, hi))
+        tet, _ = predictor.locator.locate(p[None])
+        if tet[0] >= 0 and folder.mesh.tissue[tet[0]] == prostate:
+            return p
+    raise ValueError("no prostate point on the guide's tilt plane within reach")
+
+
+def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.ndarray, *,
                solve_missing: bool, seed: int) -> dict | None:
-    """Aim with the point's d and the stiffness estimated from its markers at the lesion the plan brings closest
-    (most lie off the guide's tilt plane, out of reach); the FE at the planned and the naive pose."""
+    """Aim at a lesion within reach (plan_lesion) with the point's d and the stiffness estimated from its markers;
+    the FE at the planned and the naive pose."""
     from service import aim
     from service.estimate import StateSpace, point_set, positions
     from service.guide import Guide
@@ -215,15 +233,14 @@ def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.nd
     pts = point_set(predictor, node_ids=markers, points=np.zeros((0, 3)))
     observed = pts.reference + pts.weights @ u[pts.nodes] + np.random.default_rng(seed + 3 + k).normal(0, 0.2, (len(markers), 3))
     theta = _estimate(predictor, space, pts, len(markers), observed, 0.2, None).x[2:]
-    options = []
-    for i, lesion in enumerate(lesions):
-        one = point_set(predictor, node_ids=markers[:0], points=lesion[None])
-        options.append((aim.plan(predictor, space, guide, one, theta=theta, theta_std=np.zeros_like(theta),
-                                 displacement_mm=float(state[0])), i, one))
-    result, i, one = min(options, key=lambda o: o[0].best.miss_mm)
-    row = {"point": k, "lesion": i, "displacement_mm": float(state[0]), "reachable": result.reachable}
+    lesion = plan_lesion(folder, predictor, k, seed)
+    one = point_set(predictor, node_ids=markers[:0], points=lesion[None])
+    result = aim.plan(predictor, space, guide, one, theta=theta, theta_std=np.zeros_like(theta),
+                      displacement_mm=float(state[0]))
+    row = {"point": k, "lesion_mm": lesion.round(3).tolist(), "displacement_mm": float(state[0]),
+           "reachable": result.reachable}
     for key, pose in (("planned", result.best), ("naive", result.naive)):
-        path = out / f"plan_{k:03d}_{key}_lesion{i}.npz"
+        path = out / f"plan_{k:03d}_{key}.npz"
         fe_state = _saved_pose(path, np.concatenate([[pose.displacement_mm, pose.angle_deg], state[2:]]))
         fe = solved(path, folder, predictor, fe_state, solve_missing=solve_missing)
         if fe is None:
@@ -268,7 +285,7 @@ def run(model: Path, *, n: int, seed: int, n_lesions: int, draws: int, plan_poin
             continue
         fresh[k] = u
         if len(fresh) <= plan_points:
-            row = plan_check(folder, predictor, out, k, state, u, lesions, solve_missing=solve_missing, seed=seed)
+            row = plan_check(folder, predictor, out, k, state, u, solve_missing=solve_missing, seed=seed)
             if row is not None:
                 plans.append(row)
     data = {"model": folder.manifest.name, "n_points": n, "n_solved": len(fresh), "unsolved": unsolved,
@@ -303,12 +320,13 @@ def report(data: dict) -> str:
     if data["plans"]:
         ok = sum(p["fe_planned_miss_mm"] <= PLAN_TOL_MM for p in data["plans"] if p["reachable"])
         reach = sum(p["reachable"] for p in data["plans"])
-        lines += ["", f"Planning at {len(data['plans'])} points ({reach} reachable): the planned needle path passes "
-                  f"within {PLAN_TOL_MM} mm of the FE-displaced lesion at {ok} of {reach}.", "",
-                  "| point | lesion | d (mm) | planned β | predicted miss | FE miss, planned | naive β | predicted miss, naive "
-                  "| FE miss, naive |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += ["", f"Planning at {len(data['plans'])} points, each at a lesion on the guide's tilt plane ({reach} "
+                  f"reachable): the planned needle path passes within {PLAN_TOL_MM} mm of the FE-displaced lesion at {ok} "
+                  f"of {reach}.", "",
+                  "| point | lesion (mm) | d (mm) | planned β | predicted miss | FE miss, planned | naive β | "
+                  "predicted miss, naive | FE miss, naive |", "|---|---|---|---|---|---|---|---|---|"]
         for p in data["plans"]:
-            lines.append(f"| {p['point']} | {p['lesion']} | {p['displacement_mm']:.2f} | {p['planned_angle_deg']:.2f} | "
+            lines.append(f"| {p['point']} | {p['lesion_mm']} | {p['displacement_mm']:.2f} | {p['planned_angle_deg']:.2f} | "
                          f"{p['predicted_planned_miss_mm']:.3f} mm | {p['fe_planned_miss_mm']:.3f} mm | {p['naive_angle_deg']:.2f} | "
                          f"{p['predicted_naive_miss_mm']:.3f} mm | {p['fe_naive_miss_mm']:.3f} mm |")
     return "\n".join(lines) + "\n"

@@ -164,3 +164,24 @@ def test_the_stream_answers_each_frame_and_survives_a_bad_one(tiny_client):
         np.testing.assert_allclose([p["value"] for p in reply["state"]], [p["value"] for p in posted["state"]], atol=1e-4)
     assert {d["field"] for d in bad["detail"]} == {"markers.0.position_mm", "markers.0.std_mm"}
     assert again["fit"]["iterations"] <= first["fit"]["iterations"]  # from the previous frame's state
+
+
+def test_a_targets_covariance_adds_the_models_own_error_there(tiny_predictor, tiny_folder):
+    """model_sigma_mm: half the manifest's bound against the model's own FE, the markers' for a prostate point and
+    every node's elsewhere; the fit adds its square to each target's covariance, nothing else changes."""
+    from service.estimate import model_sigma_mm
+
+    acc = tiny_folder.manifest.accuracy.regions
+    adipose = tiny_folder.manifest.mesh.tissues.index("adipose")
+    tet = tiny_folder.tets[np.flatnonzero(tiny_folder.mesh.tissue == adipose)[0]]
+    points = np.array([prostate_point(tiny_folder), tiny_folder.nodes[tet[:4]].mean(axis=0)])
+    sigma = model_sigma_mm(tiny_predictor, points)
+    np.testing.assert_allclose(sigma, [acc["markers"].surrogate_mm / 2, acc["all_nodes"].surrogate_mm / 2])
+    space = StateSpace.of(tiny_predictor)
+    pts = point_set(tiny_predictor, node_ids=tiny_folder.regions["markers"], points=points)
+    observed = positions(tiny_predictor, space, pts, np.array([4.0, 2.0]))[0][:8]
+    args = (pts, 8, observed, np.full(8, 0.02), np.zeros(2), np.full(2, np.inf))
+    bare, held = (estimate(tiny_predictor, space, Problem(*args, s)) for s in (None, sigma))
+    np.testing.assert_allclose(held.target_covariance - bare.target_covariance,
+                               sigma[:, None, None] ** 2 * np.eye(3), atol=1e-15)
+    np.testing.assert_array_equal(held.x, bare.x)
