@@ -185,3 +185,17 @@ def test_a_targets_covariance_adds_the_models_own_error_there(tiny_predictor, ti
     np.testing.assert_allclose(held.target_covariance - bare.target_covariance,
                                sigma[:, None, None] ** 2 * np.eye(3), atol=1e-15)
     np.testing.assert_array_equal(held.x, bare.x)
+
+
+def test_the_served_default_model_estimates_and_plans(client):
+    """models/default (a material model judged by ratios): noise-free markers at nominal stiffness give (d, beta)
+    back under the scene's stiffness prior, and /plan answers for a lesion in front of the guide."""
+    guide = {"displacement_mm": 6.0, "angle_deg": 3.0}
+    reply = _estimate(client, markers=_markers(client, **guide), targets=[[0.0, 0.0, 35.0]])
+    state = _state(reply)
+    assert state["displacement_mm"]["value"] == pytest.approx(6.0, abs=1e-3)
+    assert state["angle_deg"]["value"] == pytest.approx(3.0, abs=1e-2)
+    moved = predict_json(client, points=[[0.0, 0.0, 35.0]], **guide)["positions"][0]
+    np.testing.assert_allclose(reply["targets"][0]["position_mm"], moved, atol=1e-3)
+    plan = client.post("/plan", json={"lesion_mm": [0.0, 0.0, 35.0], "displacement_mm": 6.0})
+    assert plan.status_code == 200 and plan.json()["reachable"]
