@@ -11,9 +11,9 @@ K_T the exact tangent at u (contact curvature included). f_i is taken as r(u; E_
 that linearity, so every element variant is covered by the residual that the solver itself uses.
 
 With the guide prescribing displacements and gravity off, scaling every E by one factor leaves u unchanged:
-only stiffness ratios matter, and sum_i S_i = 0 over the assembled tissues: exactly with the glued patch, and with
-the tip in contact when its penalty scales with the wall's E (guide.contact_stiffness_per_mm); with a fixed penalty
-(contact_stiffness_kpa_mm) up to its compliance.
+only stiffness ratios matter, and sum_i S_i = 0 over the assembled tissues. With the tip in contact, the points that
+press on it are held there to first order (B S = 0, _constrained): the contact pressure is a reaction, so its change
+comes from the constraint, not from the penalty's compliance, and the sum is zero with the tip in contact too.
 """
 
 from __future__ import annotations
@@ -21,7 +21,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.sparse.linalg import LinearOperator, cg
 
+from fem_offline.fe import contact as ct
 from fem_offline.fe import mixed
 from fem_offline.fe.linsolve import Factor
 from fem_offline.fe.newton import residual, tangent_operator
@@ -61,14 +63,57 @@ def stiffened(problem: Problem, tissues: tuple[str, ...] | None = None) -> Stiff
 
 def tissue_force(models: Stiffened, loaded: Problem, u: np.ndarray, name: str) -> np.ndarray:
     """f_i(u) (n_dofs,): d r / d ln E_i at u, with the guide and contact load of `loaded`."""
-    twice = models.doubled[name]
-    load = loaded.contact_load
-    if load is not None and twice.contact.stiffness != loaded.contact.stiffness:
-        # a penalty that scales with the wall's E (guide.contact_stiffness_per_mm): its multipliers scale with it, so
-        # the contact force is of degree one in E like the tissues' forces, and sum_i f_i = r(u) exactly
-        load = load._replace(multipliers=load.multipliers * (twice.contact.stiffness / loaded.contact.stiffness))
-    twice = replace(twice, contact_load=load)
+    twice = replace(models.doubled[name], contact_load=loaded.contact_load)
+    if twice.contact is not None:  # the contact pressure is a reaction, not a tissue's force: the same penalty
+        twice = replace(twice, contact=loaded.contact)
     return residual(twice, u).r - residual(loaded, u).r
+
+
+# CG on the contact points' Schur complement stops at this relative residual (_constrained)
+CONSTRAINT_RTOL = 1e-6
+
+
+def _constrained(factor, loaded: Problem, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """S (n_dofs,) of K S = rhs + B^T mu with the contact points that press (t > 0) held on the tip to first order,
+    B S = 0, (B S)_q = n_q . dx_q: mu from (B K^-1 B^T) mu = -B K^-1 rhs by CG, one back-substitution a step.
+
+    With the penalty alone, K S = rhs, S carries the penalty's compliance and sum_i S_i is not zero. Held exactly, the
+    tissues' forces that balance the tip (sum_i f_i = -r_contact, along the pressed normals) are taken by mu, and
+    sum_i S_i = 0. On the constrained directions the penalty's k B^T B vanishes, so K stands for the elastic tangent.
+    """
+    free = loaded.free
+
+    def solve(b):
+        s = np.zeros(loaded.n_dofs)
+        s[free] = factor.solve(b[free])
+        return s
+
+    s0 = solve(rhs)
+    surface = loaded.contact
+    if surface is None:
+        return s0
+    on = ct.evaluate(surface, u, loaded.contact_load).pressure > 0
+    if not on.any():
+        return s0
+    normal = ct.evaluate(surface, u, loaded.contact_load).normal[on]  # (m, 3)
+    N, edofs = surface.N[on], np.repeat(surface.edofs[:, None, :], surface.shape[1], axis=1)[on]  # (m, 10), (m, 30)
+
+    def B(s):  # (m,) normal motion of each pressed point
+        return np.einsum("qi,qa,qai->q", normal, N, s[edofs].reshape(-1, 10, 3))
+
+    def Bt(mu):  # (n_dofs,) the forces mu along the normals
+        return np.bincount(edofs.ravel(), weights=np.einsum("q,qa,qi->qai", mu, N, normal).ravel(),
+                           minlength=loaded.n_dofs)
+
+    schur = LinearOperator((len(N), len(N)), matvec=lambda mu: B(solve(Bt(np.ravel(mu)))), dtype=np.float64)
+    target = -B(s0)
+    if not np.abs(target).max() > 0:
+        return s0
+    # K holds the penalty k B^T diag(w) B, so B K^-1 B^T is near (k w)^-1 on what presses: k w preconditions it
+    kw = surface.stiffness * surface.w[on]
+    precondition = LinearOperator(schur.shape, matvec=lambda r: kw * np.ravel(r), dtype=np.float64)
+    mu, _ = cg(schur, target, rtol=CONSTRAINT_RTOL, maxiter=500, M=precondition)
+    return s0 + solve(Bt(mu))
 
 
 def sensitivities(models: Stiffened, loaded: Problem, u: np.ndarray) -> dict[str, np.ndarray]:
@@ -78,13 +123,8 @@ def sensitivities(models: Stiffened, loaded: Problem, u: np.ndarray) -> dict[str
     """
     K, _ = tangent_operator(loaded, u)
     factor = K.factorise(float32=False) if isinstance(K, mixed.Tangent) else Factor(K)
-    free = loaded.free
-    out = {}
-    for name in models.tissues:
-        s = np.zeros(loaded.n_dofs)
-        s[free] = factor.solve(-tissue_force(models, loaded, u, name)[free])
-        out[name] = s.reshape(-1, 3)
-    return out
+    return {name: _constrained(factor, loaded, u, -tissue_force(models, loaded, u, name)).reshape(-1, 3)
+            for name in models.tissues}
 
 
 def first_order(u: np.ndarray, sens: dict[str, np.ndarray], log_ratio: dict[str, float]) -> np.ndarray:

@@ -69,3 +69,23 @@ def test_the_sensitivities_sum_to_zero_with_the_tip_in_contact(scaled_contact):
     largest = max(np.abs(s).max() for s in sens.values())
     assert largest > 1e-3 * np.abs(u).max()
     assert np.abs(sum(sens.values())).max() < 1e-5 * largest
+
+
+@pytest.mark.slow
+def test_the_rectal_walls_sensitivity_is_the_central_difference_with_the_scaled_penalty(tiny_scene, tiny_mesh):
+    """The wall's E moves the penalty with it: S_wall against (u(E e^h) - u(E e^-h)) / 2h, h = 0.02, with the
+    contact settled to 1e-5 mm (the default 5e-3 mm / h would swamp the quotient) and Newton to 1e-9."""
+    scene = formulation(_contact(tiny_scene, 1.0), "mean_dilatation", CONTACT_PER_MM)
+    scene = scene.model_copy(update={"guide": scene.guide.model_copy(update={"contact_tol_mm": 1e-5}),
+                                     "solver": scene.solver.model_copy(update={"rtol": 1e-9})})
+
+    def solve(factor):
+        problem = build_problem(at_factors(scene, {"rectal_wall": factor}), tiny_mesh)
+        (d, u, _, state), = solve_path(problem, [2.0], 10.0, with_state=True)
+        return problem, problem.at_guide(d, 10.0, state.multipliers), state.u
+
+    problem, loaded, u = solve(1.0)
+    s = sensitivities(stiffened(problem, ("rectal_wall",)), loaded, u)["rectal_wall"]
+    h = 0.02
+    fd = (solve(np.exp(h))[2] - solve(np.exp(-h))[2]).reshape(-1, 3) / (2 * h)
+    assert np.abs(s - fd).max() < 0.01 * np.abs(fd).max()

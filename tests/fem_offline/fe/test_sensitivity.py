@@ -74,8 +74,11 @@ def test_each_sensitivity_is_the_central_difference_of_fresh_solves(tiny_scene, 
 
 @pytest.mark.slow
 def test_with_the_tip_in_contact_and_taylor_hood_the_sensitivity_is_the_central_difference(tiny_scene, tiny_mesh):
-    """The default's physics (frictionless contact, P2/P1) on the tiny mesh, for the prostate, at 1.5 mm."""
-    scene = _variant(tiny_scene, guide_contact=True, volumetric="taylor_hood")
+    """The default's physics (frictionless contact, P2/P1) on the tiny mesh, for the prostate, at 1.5 mm, with the
+    contact settled to 1e-5 mm and Newton to 1e-9: at the default 5e-3 mm the quotient's noise (tol / h) is as
+    large as the penalty's compliance that the sensitivity leaves out (fe/sensitivity.py, _constrained)."""
+    scene = _variant(tiny_scene, guide_contact=True, volumetric="taylor_hood", rtol=1e-9)
+    scene = scene.model_copy(update={"guide": scene.guide.model_copy(update={"contact_tol_mm": 1e-5})})
     problem = build_problem(scene, tiny_mesh)
     loaded, u = _equilibrium(problem, 1.5)
     s = sensitivities(stiffened(problem, ("prostate",)), loaded, u)["prostate"]
@@ -83,9 +86,7 @@ def test_with_the_tip_in_contact_and_taylor_hood_the_sensitivity_is_the_central_
     plus = _equilibrium(build_problem(_scaled(scene, {"prostate": np.exp(h)}), tiny_mesh), 1.5)[1].reshape(-1, 3)
     minus = _equilibrium(build_problem(_scaled(scene, {"prostate": np.exp(-h)}), tiny_mesh), 1.5)[1].reshape(-1, 3)
     fd = (plus - minus) / (2 * h)
-    # the contact multipliers settle to guide.contact_tol_mm, not to round-off: the difference quotient
-    # carries that tolerance / h at most
-    assert np.abs(s - fd).max() < 0.02 * np.abs(fd).max()
+    assert np.abs(s - fd).max() < 0.01 * np.abs(fd).max()
 
 
 def test_first_order_answer_and_propagated_std(glued):
