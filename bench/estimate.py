@@ -119,6 +119,20 @@ def stream(url: str, folder, predictor, seconds: float, seed: int) -> dict:
     return {"frames": n, "fps_sent": FPS, "fps_kept": n / elapsed, **{f"lag_{k}": v for k, v in _ms(lags).items()}}
 
 
+def report(data: dict) -> str:
+    lines = [f"# POST /estimate, POST /plan and the stream, {data['model']}", "",
+             "| request | p50 | p99 | max | requests |", "|---|---|---|---|---|"]
+    for where in ("in_process", "served"):
+        for route, v in data[where].items():
+            lines.append(f"| /{route}, {where.replace('_', ' ')} | {v['p50_ms']:.2f} ms | {v['p99_ms']:.2f} ms | "
+                         f"{v['max_ms']:.2f} ms | {v['n']} |")
+    st = data["stream"]
+    lines += ["", f"The stream: {st['frames']} frames sent at {st['fps_sent']:g}/s, {st['fps_kept']:.1f}/s kept; each "
+              f"frame's lag from its send to its reply p50 {st['lag_p50_ms']:.2f} ms, p99 {st['lag_p99_ms']:.2f} ms, "
+              f"max {st['lag_max_ms']:.2f} ms."]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench estimate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -135,8 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     with loadtest.local_service("--model", str(args.model), "--workers", "1") as url:
         data["served"] = served(url, est, plan)
         data["stream"] = stream(url, folder, predictor, args.stream_s, args.seed)
-    rows = [{"what": f"{k} {r}", **v} for k in ("in_process", "served") for r, v in data[k].items()]
-    data["rows"] = rows + [{"what": "stream, 30 frames/s", **data["stream"]}]
-    print(json.dumps(data["rows"], indent=1))
+    data["report_md"] = report(data)
+    print(data["report_md"])
     print(f"wrote {results.write('bench_estimate', data, publish=args.publish)}")
     return 0
