@@ -290,10 +290,11 @@ def markdown(rows: list[dict], box: dict, angles) -> str:
              "The box: " + ", ".join(f"{t} x{lo:g} to x{hi:g}" for t, (lo, hi) in box.items())
              + " of the nominal E. A corner's signs give each tissue's end in that order; a face centre has one "
                "tissue at an end and the others at the geometric centre of their ranges.", ""]
+    total = len(box_points(box)) * len(angles)
     for element in elements:
         mine = [r for r in rows if r["element"] == element]
         solved = sum(r["solved"] for r in mine)
-        lines.append(f"- **{element}**: {solved} of {len(mine)} solves reach the full push; smallest det F "
+        lines.append(f"- **{element}**: {len(mine)} of the {total} solves run; {solved} of {len(mine)} reach the full push; smallest det F "
                      f"{min(r['min_det_f'] for r in mine):.3f}, smallest tet volume ratio "
                      f"{min(r['min_volume_ratio'] for r in mine):.3f}; {sum(r['seconds'] for r in mine) / 60:.0f} "
                      f"min in all, median {np.median([r['seconds'] for r in mine]):.0f} s a solve.")
