@@ -252,6 +252,11 @@ def cost_markdown(cost: dict) -> str:
     return "\n".join(lines)
 
 
+def _or_dash(x: float, spec: str) -> str:
+    """x formatted, or a dash where it is not a number (no order unless the levels converge monotonically)."""
+    return "—" if not np.isfinite(x) else format(x, spec)
+
+
 def gci_markdown(gci: dict, element: str) -> str:
     lines = [f"## Grid convergence of the worst element ({element}, 10 mm, beta 0)", "",
              "| point | tets | min det F | min theta_e | seconds |", "|---|---|---|---|---|"]
@@ -266,11 +271,11 @@ def gci_markdown(gci: dict, element: str) -> str:
             continue
         for key in ("min_det_f", "min_volume_ratio"):
             q = g[key]
-            lines.append(f"| {name} | {key} | {q['kind']} | {q['order']:.2f} | {q['extrapolated']:.4f} | "
-                         f"{q['gci_fine']:.4f} |")
+            lines.append(f"| {name} | {key} | {q['kind']} | {_or_dash(q['order'], '.2f')} | "
+                         f"{_or_dash(q['extrapolated'], '.4f')} | {q['gci_fine']:.4f} |")
         m = g["markers_mm"]
-        lines.append(f"| {name} | markers' displacement (mm) | {m['kind']} | {m['order']:.2f} | max |u| "
-                     f"{m['fine_max_abs_mm']:.3f} | {m['gci_fine_max_mm']:.4f} mm |")
+        lines.append(f"| {name} | markers' displacement (mm) | {m['kind']} | {_or_dash(m['order'], '.2f')} | "
+                     f"largest on the fine mesh {m['fine_max_abs_mm']:.3f} mm | {m['gci_fine_max_mm']:.4f} mm |")
     return "\n".join(lines)
 
 
