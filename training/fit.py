@@ -24,17 +24,17 @@ import numpy as np
 from contracts import model as folder
 from contracts.model import PAPER_TEST_CASES, FitOptions, onnx_session
 
-from .export import build_graph, folded_layers, reference_decode
+from .export import OPSET, build_graph, folded_layers, reference_decode
 from .material_graph import build_material_graph, reference_decode_materials
 from .materials import materials_info, sensitivity_rows, theta_rms
-from .metrics import ANGLE_FLOOR_MM, case_errors, summarise
+from .metrics import ANGLE_FLOOR_MM, REGIONS, case_errors, summarise
 from .pca import Pca, fit_pca, fit_pca_with_extra
+from .report import PAPER_TABLE3
 from .snapshots import Snapshots, read_offgrid, read_sweep, valid_part
 from .tradeoff import gci_bands
 
 log = logging.getLogger(__name__)
 
-PAPER_TABLE3 = {"e_nn_mm": 0.03, "alpha_deg": 0.01, "e_r_percent": 1.41, "train_minutes": 38.5}
 __all__ = ["PAPER_TEST_CASES", "FitOptions", "Surrogate", "fit", "fit_surrogate", "summary_line", "training_set"]
 
 
@@ -118,9 +118,6 @@ def evaluate(session, inputs: np.ndarray, reference: np.ndarray) -> list[folder.
         pred = session.run(None, {"guide": x[None].astype(np.float32)})[0][0].astype(np.float64)
         rows.append(folder.CaseErrors(displacement_mm=float(x[0]), angle_deg=float(x[1]), **case_errors(pred, u)))
     return rows
-
-
-REGIONS = ("markers", "prostate_surface", "all_nodes")
 
 
 def region_errors(session, inputs: np.ndarray, reference: np.ndarray, node_sets: dict) -> dict[str, float]:
@@ -354,7 +351,7 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
                                            input_scale=surrogate.input_scale.tolist()),
         envelope=envelope,
         envelope_cut=cut,
-        onnx=folder.OnnxInfo(opset=17, inputs=onnx_in, outputs=onnx_out, basis_dtype="float32"),
+        onnx=folder.OnnxInfo(opset=OPSET, inputs=onnx_in, outputs=onnx_out, basis_dtype="float32"),
         metrics=metrics,
         accuracy=accuracy,
         timing=folder.Timing(pca_seconds=surrogate.pca_seconds, train_seconds=surrogate.info["seconds"],

@@ -12,9 +12,12 @@ the same PCA basis (fitted on the u and the S rows together) as d (mean + c basi
 Both outputs are linear in the fields before the square root, so the weights are combined before the decode: u's row
 is [1, theta] . w (one row) and the std's rows are sigma_i w_i; the 1 + m rows are one Gemm of (batch (1 + m),
 rank + 1) weights with the basis, in either branch of the `If` on the node subset, so a subset call still gathers
-only its 3k basis rows. The variance sum_i (sigma_i S_i)^2 is a MatMul with ones over the m rows: onnxruntime's
-Mul + ReduceSum over that axis (the graph's first form) cost half as much as the Gemm itself. At 10,123 nodes,
-batch 1, one thread: 0.42 ms against 0.71 ms for the first form (medians, same session options).
+only its 3k basis rows. The variance sum_i (sigma_i S_i)^2 is a MatMul with ones over the m rows, not
+onnxruntime's Mul + ReduceSum over that axis (the graph's first form), which cost half as much as the Gemm itself
+(CHANGELOG, where `training regraph` rebuilt models/default with it).
+
+The graph is export.py's, extended: the same network nodes, basis and node-subset decode, with the material
+inputs combined into the decode's weights before it and the std taken after it.
 """
 
 from __future__ import annotations
@@ -23,57 +26,31 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from .export import OPSET, _init, network_nodes
+from .export import (basis_nodes, checked_model, constants, decode_nodes, every_node, initializer, network_nodes,
+                     reference_network)
 from .pca import Pca
 
 
 def reference_decode_materials(layers, pca: Pca, n_materials: int, guide: np.ndarray, theta: np.ndarray | None = None,
                                sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Float64 numpy forward pass: (displacement, displacement_std), each (batch, n_nodes, 3)."""
-    h = np.asarray(guide, dtype=np.float64)
-    d = h[:, :1]
-    for w, b in layers[:-1]:
-        h = np.tanh(h @ w + b)
-    w, b = layers[-1]
-    coef = (h @ w + b).reshape(len(h), 1 + n_materials, -1)  # (batch, 1 + m, rank)
+    d, coefficients = reference_network(layers, guide)
+    coef = coefficients.reshape(len(d), 1 + n_materials, -1)  # (batch, 1 + m, rank)
     fields = d[:, :, None] * pca.decode(coef)  # (batch, 1 + m, 3 n_nodes)
-    theta = np.zeros((len(h), n_materials)) if theta is None else np.asarray(theta, dtype=np.float64)
-    sigma = np.zeros((len(h), n_materials)) if sigma is None else np.asarray(sigma, dtype=np.float64)
+    theta = np.zeros((len(d), n_materials)) if theta is None else np.asarray(theta, dtype=np.float64)
+    sigma = np.zeros((len(d), n_materials)) if sigma is None else np.asarray(sigma, dtype=np.float64)
     u = fields[:, 0] + np.einsum("bm,bmn->bn", theta, fields[:, 1:])
     std = np.sqrt(np.einsum("bm,bmn->bn", sigma**2, fields[:, 1:] ** 2))
-    return u.reshape(len(h), -1, 3), std.reshape(len(h), -1, 3)
-
-
-def _branches(basis: str, n_comp: int):
-    """(subset, full): each the flat fields (batch (1 + m), 3k) of the weights `w2` and the basis rows it needs."""
-    full = helper.make_graph(
-        [helper.make_node("Gemm", ["w2", basis], ["flat_full"], transB=1)],
-        "full_mesh", [], [helper.make_tensor_value_info("flat_full", TensorProto.FLOAT, ["rows", n_comp])])
-    subset = helper.make_graph(
-        [  # components 3i, 3i+1, 3i+2 of each requested node i
-            helper.make_node("Unsqueeze", ["nodes", "axis1"], ["nodes_col"]),
-            helper.make_node("Mul", ["nodes_col", "three"], ["first"]),
-            helper.make_node("Add", ["first", "xyz"], ["comp_2d"]),
-            helper.make_node("Reshape", ["comp_2d", "flat"], ["comp"]),
-            helper.make_node("Gather", [basis, "comp"], ["basis_k"], axis=0),
-            helper.make_node("Gemm", ["w2", "basis_k"], ["flat_k"], transB=1),
-        ],
-        "node_subset", [], [helper.make_tensor_value_info("flat_k", TensorProto.FLOAT, ["rows", "k3"])])
-    return subset, full
+    return u.reshape(len(d), -1, 3), std.reshape(len(d), -1, 3)
 
 
 def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32) -> onnx.ModelProto:
     """The material model's ONNX graph (module docstring); `dtype` is the basis precision."""
     m, n_comp, rank = n_materials, pca.basis.shape[1], pca.basis.shape[0]
-    inits = [_init("basis", np.ascontiguousarray(np.vstack([pca.basis, pca.mean]).T).astype(dtype))]
+    basis_init, cast, basis = basis_nodes(pca, dtype)
     net_inits, nodes = network_nodes(layers)
-    inits += net_inits
-    basis = "basis"
-    if dtype != np.float32:
-        nodes.append(helper.make_node("Cast", ["basis"], ["basis32"], to=TensorProto.FLOAT))
-        basis = "basis32"
-    subset, full = _branches(basis, n_comp)
     nodes += [
+        *cast,
         # weights [d c_j, d] per field j (batch, 1 + m, rank + 1), as rows (batch (1 + m), rank + 1)
         helper.make_node("Reshape", ["coefficients", "coef_shape"], ["coef3"]),
         helper.make_node("Unsqueeze", ["d", "axis2"], ["d3"]),
@@ -90,9 +67,8 @@ def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32
         helper.make_node("Mul", ["w_s", "sigma3"], ["w_sigma"]),
         helper.make_node("Concat", ["w_u", "w_sigma"], ["w_rows"], axis=1),
         helper.make_node("Reshape", ["w_rows", "w_shape"], ["w2"]),
-        helper.make_node("Size", ["nodes"], ["n_requested"]),
-        helper.make_node("Greater", ["n_requested", "zero"], ["is_subset"]),
-        helper.make_node("If", ["is_subset"], ["flat_fields"], then_branch=subset, else_branch=full),
+        # the flat fields (batch (1 + m), 3k) of every node or of the requested ones
+        *decode_nodes("w2", basis, "flat_fields", full_shape=["rows", n_comp], subset_shape=["rows", "k3"]),
         # rows (batch, 1 + m, k, 3): u, then sigma_i S_i
         helper.make_node("Shape", ["guide"], ["guide_shape"]),
         helper.make_node("Slice", ["guide_shape", "zero1", "one1"], ["batch"]),
@@ -109,37 +85,27 @@ def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32
         helper.make_node("Reshape", ["variance3", "out_shape"], ["variance"]),
         helper.make_node("Sqrt", ["variance"], ["displacement_std"]),
     ]
-    inits += [
-        _init("zero", np.array(0, dtype=np.int64)),
-        _init("zero1", np.array([0], dtype=np.int64)),
-        _init("one1", np.array([1], dtype=np.int64)),
-        _init("axis1", np.array([1], dtype=np.int64)),
-        _init("axis2", np.array([2], dtype=np.int64)),
-        _init("xyz", np.arange(3, dtype=np.int64)[None, :]),
-        _init("three", np.array(3, dtype=np.int64)),
-        _init("flat", np.array([-1], dtype=np.int64)),
-        _init("coef_shape", np.array([0, 1 + m, rank], dtype=np.int64)),
-        _init("w_shape", np.array([-1, rank + 1], dtype=np.int64)),
-        _init("ones_fields", np.ones((1, 1 + m, 1), dtype=np.float32)),
-        _init("fields_tail", np.array([1 + m, -1, 3], dtype=np.int64)),
-        _init("m_end", np.array([1 + m], dtype=np.int64)),
-        _init("ones_m", np.ones((1, m), dtype=np.float32)),
-        _init("terms_tail", np.array([m, -1], dtype=np.int64)),
-        _init("xyz_tail", np.array([-1, 3], dtype=np.int64)),
-        _init("nodes", np.zeros(0, dtype=np.int64)),  # optional inputs' defaults: every node, nominal, no std
-        _init("materials", np.zeros((1, m), dtype=np.float32)),
-        _init("materials_std", np.zeros((1, m), dtype=np.float32)),
+    shapes = [  # the constants that depend on m and the rank
+        initializer("coef_shape", np.array([0, 1 + m, rank], dtype=np.int64)),
+        initializer("w_shape", np.array([-1, rank + 1], dtype=np.int64)),
+        initializer("ones_fields", np.ones((1, 1 + m, 1), dtype=np.float32)),
+        initializer("fields_tail", np.array([1 + m, -1, 3], dtype=np.int64)),
+        initializer("m_end", np.array([1 + m], dtype=np.int64)),
+        initializer("ones_m", np.ones((1, m), dtype=np.float32)),
+        initializer("terms_tail", np.array([m, -1], dtype=np.int64)),
+        initializer("xyz_tail", np.array([-1, 3], dtype=np.int64)),
     ]
-    graph = helper.make_graph(
-        nodes, "prostate_deformation_materials",
+    defaults = [  # of the optional inputs: every node, nominal materials, no std
+        every_node(),
+        initializer("materials", np.zeros((1, m), dtype=np.float32)),
+        initializer("materials_std", np.zeros((1, m), dtype=np.float32)),
+    ]
+    return checked_model(
+        "prostate_deformation_materials", nodes, [basis_init, *net_inits, *constants(nodes), *shapes, *defaults],
         inputs=[helper.make_tensor_value_info("guide", TensorProto.FLOAT, ["batch", 2]),
                 helper.make_tensor_value_info("materials", TensorProto.FLOAT, ["batch", m]),
                 helper.make_tensor_value_info("materials_std", TensorProto.FLOAT, ["batch", m]),
                 helper.make_tensor_value_info("nodes", TensorProto.INT64, ["k"])],
         outputs=[helper.make_tensor_value_info("displacement", TensorProto.FLOAT, ["batch", "k", 3]),
                  helper.make_tensor_value_info("displacement_std", TensorProto.FLOAT, ["batch", "k", 3])],
-        initializer=inits)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="prostate-deform")
-    model.ir_version = 8
-    onnx.checker.check_model(model)
-    return model
+    )

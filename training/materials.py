@@ -121,8 +121,8 @@ def stamp(model: Path, cases: Path):
     from contracts.files import atomic_write_text, sha256
     from contracts.model import onnx_session, read_model_folder
 
-    from .fit import PAPER_TABLE3, REGIONS
-    from .report import table3_markdown
+    from .metrics import REGIONS
+    from .report import PAPER_TABLE3, table3_markdown
 
     current = read_model_folder(model)
     info = current.manifest.materials
@@ -139,7 +139,9 @@ def stamp(model: Path, cases: Path):
     return manifest
 
 
-REGRAPH_TOLERANCE_MM = 1e-4  # float32 round-off of the two graphs' different operation order is about 1e-5 mm
+# Room for float32 round-off only: two graphs that compute the same fields in another operation order differ
+# by far less (the rebuild of models/default: CHANGELOG), a graph that computes other fields by far more.
+REGRAPH_TOLERANCE_MM = 1e-4
 
 
 def regraph(model: Path) -> tuple[float, float]:
@@ -151,26 +153,19 @@ def regraph(model: Path) -> tuple[float, float]:
     the new one answers the same."""
     import itertools
 
-    import onnx
-    from onnx import numpy_helper
-
     from contracts.files import atomic_write_bytes, atomic_write_text, sha256
     from contracts.model import onnx_session, read_model_folder
 
+    from .export import read_weights
     from .material_graph import build_material_graph
-    from .pca import Pca
 
     current = read_model_folder(model)
     info = current.manifest.materials
     if info is None:
         raise ValueError(f"--model: {model} takes no material inputs; only a material model's graph is rebuilt")
     old_bytes = (Path(model) / "model.onnx").read_bytes()
-    weights = {i.name: numpy_helper.to_array(i) for i in onnx.load_from_string(old_bytes).graph.initializer}
-    layers = [(weights[f"w{i}"].astype(np.float64), weights[f"b{i}"].astype(np.float64))
-              for i in itertools.takewhile(lambda i: f"w{i}" in weights, itertools.count())]
-    stacked = weights["basis"].T.astype(np.float64)  # (rank + 1, 3 n_nodes): the basis rows, then the mean
-    pca = Pca(mean=stacked[-1], basis=stacked[:-1], singular_values=np.ones(1))
-    new_bytes = build_material_graph(layers, pca, len(info.inputs), dtype=weights["basis"].dtype.type).SerializeToString()
+    layers, pca, dtype = read_weights(old_bytes)
+    new_bytes = build_material_graph(layers, pca, len(info.inputs), dtype=dtype).SerializeToString()
 
     spec = current.manifest.scene.spec
     sweep = spec["sweep"]

@@ -9,6 +9,9 @@ from contracts.model import CaseErrors, ErrorSummary
 # Nodes moving less than this are left out of the angular error: their direction is noise.
 ANGLE_FLOOR_MM = 0.05
 
+# The regions whose largest nodal error a model's manifest records (accuracy.regions, materials.accuracy).
+REGIONS = ("markers", "prostate_surface", "all_nodes")
+
 
 def case_errors(predicted: np.ndarray, reference: np.ndarray) -> dict[str, float]:
     """Errors of one case; both (n_nodes, 3) in mm.

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 from contracts.model import CaseErrors, ModelManifest
 
+# The paper's Table 3: its worst held-out errors and its training time, which the report sets ours beside.
+PAPER_TABLE3 = {"e_nn_mm": 0.03, "alpha_deg": 0.01, "e_r_percent": 1.41, "train_minutes": 38.5}
+
 
 def _rows(rows: list[CaseErrors]) -> list[str]:
     return [

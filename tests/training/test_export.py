@@ -6,7 +6,7 @@ from contracts.model import onnx_session
 import pytest
 import torch
 
-from training.export import build_graph, folded_layers, reference_decode
+from training.export import OPSET, build_graph, folded_layers, read_weights, reference_decode
 from training.network import train
 from training.pca import fit_pca
 
@@ -78,3 +78,27 @@ def test_float16_basis_halves_the_basis_and_stays_close(pieces):
     a, b = _session(m32).run(None, {"guide": guide})[0], _session(m16).run(None, {"guide": guide})[0]
     assert m16.ByteSize() < 0.6 * m32.ByteSize()
     assert np.abs(a - b).max() < 2e-3 * np.abs(a).max()
+
+
+def test_graph_rebuilds_byte_for_byte_from_its_own_weights(pieces):
+    """The graph is a function of its weights alone: read back and built again it gives the same bytes, float32 and
+    float16 basis (what `python -m training regraph` relies on)."""
+    net, s, pca = pieces
+    for dtype in (np.float32, np.float16):
+        built = build_graph(folded_layers(net, s), pca, dtype=dtype).SerializeToString()
+        layers, read_pca, read_dtype = read_weights(built)
+        assert read_dtype is dtype
+        assert build_graph(layers, read_pca, dtype=read_dtype).SerializeToString() == built
+
+
+def test_graph_carries_only_what_its_nodes_use_at_the_one_opset(pieces):
+    """Every initializer is named by a node (the shared index constants included) and the opset is OPSET."""
+    net, s, pca = pieces
+    model = build_graph(folded_layers(net, s), pca, dtype=np.float16)
+    named, stack = set(), list(model.graph.node)
+    while stack:
+        node = stack.pop()
+        named.update(node.input)
+        stack += [n for a in node.attribute if a.HasField("g") for n in a.g.node]
+    assert {i.name for i in model.graph.initializer} <= named
+    assert [(o.domain, o.version) for o in model.opset_import] == [("", OPSET)]

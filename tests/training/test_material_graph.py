@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from contracts.model import onnx_session
-from training.export import folded_layers
+from training.export import folded_layers, read_weights
 from training.material_graph import build_material_graph, reference_decode_materials
 from training.network import train
 from training.pca import fit_pca
@@ -94,3 +94,13 @@ def test_the_std_is_the_first_order_propagation_of_the_graphs_own_finite_differe
     expected = np.sqrt(sum((d * sg) ** 2 for d, sg in zip(slopes, sigma[0])))
     std = sess.run(["displacement_std"], {"guide": guide, "materials_std": sigma})[0]
     np.testing.assert_allclose(std, expected, atol=2e-5 * np.abs(expected).max())
+
+
+def test_material_graph_rebuilds_byte_for_byte_from_its_own_weights(pieces):
+    """Read back and built again from its weights, the material graph gives the same bytes, float32 and float16
+    basis: `python -m training regraph` changes a model folder only where today's builder differs."""
+    net, s, pca = pieces
+    for dtype in (np.float32, np.float16):
+        built = build_material_graph(folded_layers(net, s), pca, M, dtype=dtype).SerializeToString()
+        layers, read_pca, read_dtype = read_weights(built)
+        assert build_material_graph(layers, read_pca, M, dtype=read_dtype).SerializeToString() == built
