@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service import loadtest
+from bench import loadtest
 from service.estimate import StateSpace, point_set, positions
 from service.estimate_routes import Closing, run_estimate, run_plan
 from service.estimate_schemas import estimate_request_model, plan_request_model

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from service import loadtest
+from bench import loadtest
 from service.info import model_info
 from service.model import OutsideMesh, Predictor, read_model_folder
 from service.predict import predict

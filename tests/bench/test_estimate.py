@@ -1,7 +1,7 @@
 """bench estimate against a served tiny model: uvicorn serves the estimate stream, and every frame gets its reply."""
 
 from bench.estimate import bodies, served, stream
-from service import loadtest
+from bench import loadtest
 from service.model import Predictor, read_model_folder
 
 

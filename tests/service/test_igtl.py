@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 from pyigtl.messages import CRC64
 
-from service.loadtest import free_port
+from bench.loadtest import free_port
 from service.guide import Guide, OffAxisPose
 from service.igtl import POINTS_NAME, STATUS_NAME, Responder, read_message
 

@@ -13,7 +13,7 @@ from contextlib import contextmanager
 
 import pytest
 
-from service.loadtest import free_port
+from bench.loadtest import free_port
 
 from .conftest import DEFAULT
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from .helpers import predict_json
 
-from service.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
+from bench.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
 from service.viewer import STATIC
 
 needs_chromium = pytest.mark.skipif(find_chromium() is None,
@@ -128,7 +128,7 @@ def test_page_loads_without_errors_with_the_envelope_on_its_sliders(viewer, tiny
 
 @needs_chromium
 def test_webgl_runs_on_the_software_backend_chosen_and_multisamples_only_on_hardware(viewer):
-    from service.browser import LLVMPIPE_FLAGS, webgl_flags
+    from bench.browser import LLVMPIPE_FLAGS, webgl_flags
 
     page, _, _ = viewer
     state = page.evaluate("({webgl: __viewer.webgl, antialias: __viewer.antialias, "

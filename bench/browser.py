@@ -1,9 +1,9 @@
 """Drive the viewer in a real browser: Debian's chromium under Playwright (the dev extra; never a downloaded browser).
 
-For the viewer's tests and scripts/bench_viewer.py; the service itself never imports this module.
+For the viewer's tests and `python -m bench viewer|viewer-backends`; the service never imports this module.
 Without a GPU, WebGL runs in software: on Mesa's llvmpipe through ANGLE's GL-EGL backend where
 Mesa's EGL is installed (`make system-deps`), else on chromium's own SwiftShader. Measured on the
-default model at 1280 x 800 (scripts/bench_viewer.py, README "Browser viewer"): SwiftShader's GPU
+default model at 1280 x 800 (`python -m bench viewer-backends`, docs/viewer.md): SwiftShader's GPU
 process spent about 260 ms of CPU per frame and llvmpipe's about 110, on the 2 cores the service
 shares, so llvmpipe is preferred.
 """
@@ -17,7 +17,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-from .loadtest import free_port
+from bench.loadtest import free_port
 
 CHROMIUM = ("chromium", "chromium-browser")
 SWIFTSHADER_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]

@@ -11,7 +11,9 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-from service import loadtest
+import bench
+from bench import loadtest
+from studies._cli import dispatch
 
 
 class _Failing(BaseHTTPRequestHandler):
@@ -59,9 +61,8 @@ def test_a_failing_warm_up_ends_the_run_with_the_reply(failing_url):
     assert raised and "HTTP 500: " in raised[0] and "materials_std" in raised[0]
 
 
-def test_the_cli_says_so_and_exits_2(failing_url, capsys, monkeypatch):
-    monkeypatch.setattr("sys.argv", ["loadtest", "--url", failing_url, "--concurrency", "2", "--duration", "1"])
-    assert loadtest.main() == 2
+def test_the_cli_says_so_and_exits_2(failing_url, capsys):
+    assert dispatch(bench, ["loadtest", "--url", failing_url, "--concurrency", "2", "--duration", "1"]) == 2
     assert "error: a warm-up request" in capsys.readouterr().err
 
 

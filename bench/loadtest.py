@@ -1,7 +1,7 @@
 """Load-test a running service on loopback: N clients for T seconds (or R requests), JSON or binary.
 
-    python -m service.loadtest --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
-    python -m service.loadtest --region markers --requests 2000
+    python -m bench loadtest --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
+    python -m bench loadtest --region markers --requests 2000
 
 Each client holds one keep-alive connection and sends random (displacement, angle) inside the
 model's envelope (read from GET /model). Prints p50/p95/p99/max latency, throughput and errors.
@@ -245,15 +245,16 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
     return Result(np.concatenate([np.asarray(x) for x in latencies]), sum(errors), time.perf_counter() - t0)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench loadtest", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--url", default="http://127.0.0.1:8000")
     ap.add_argument("--concurrency", type=int, default=1)
     ap.add_argument("--duration", type=float, default=10.0, help=f"seconds (at most {MAX_DURATION_S:.0f})")
     ap.add_argument("--requests", type=int, help="stop after this many requests")
     ap.add_argument("--format", choices=("json", "binary"), default="json")
     ap.add_argument("--region", help="decode one region (default: the full mesh)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if not 1 <= args.concurrency <= 256:
         ap.error("--concurrency must be from 1 to 256")
     if args.duration <= 0 or (args.requests is not None and args.requests < 1):
