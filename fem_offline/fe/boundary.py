@@ -13,8 +13,6 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from contracts.tet10 import boundary_faces
-
 from fem_offline.fe import guide
 
 if TYPE_CHECKING:
@@ -26,21 +24,6 @@ class Constraints(NamedTuple):
     fixed_dofs: np.ndarray  # (n_fixed,) held at zero
     guide_dofs: np.ndarray  # (n_patch, 3)
     guide_weight: np.ndarray  # (n_patch,) rounded-tip weight w
-
-
-def bone_nodes(mesh: TetMesh, scene: Scene) -> np.ndarray:
-    """Every node of a tet whose tissue is marked `bone` in the scene (sorted)."""
-    bone_ids = [i for i, n in enumerate(mesh.tissue_names) if scene.tissues[n].bone]
-    return np.unique(mesh.tets[np.isin(mesh.tissue, bone_ids)])
-
-
-def table_nodes(mesh: TetMesh) -> np.ndarray:
-    """Boundary nodes on the bottom face z = z_min (to 1e-6 of the height)."""
-    ext, _ = boundary_faces(mesh.tets)
-    ext_nodes = np.unique(ext)
-    z = mesh.nodes[:, 2]
-    tol = 1e-6 * (z.max() - z.min())
-    return ext_nodes[z[ext_nodes] <= z.min() + tol]
 
 
 def constraints(scene: Scene, mesh: TetMesh) -> Constraints:

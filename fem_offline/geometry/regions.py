@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from contracts.tet10 import face_multiplicity, faces
+from contracts.tet10 import boundary_faces, face_multiplicity, faces
 
-from fem_offline.fe import guide
-from fem_offline.fe.boundary import bone_nodes, table_nodes
+from fem_offline.geometry import guide_patch
 from fem_offline.geometry.mesh import TetMesh
 from fem_offline.scene import Scene
 
@@ -20,6 +19,21 @@ def interface_nodes(mesh: TetMesh, tissue: int) -> np.ndarray:
     n_inside = np.bincount(group, weights=inside)[group]
     surface = inside & (n_inside == 1)
     return np.unique(six[surface])
+
+
+def bone_nodes(mesh: TetMesh, scene: Scene) -> np.ndarray:
+    """Every node of a tet whose tissue is marked `bone` in the scene (sorted)."""
+    bone_ids = [i for i, n in enumerate(mesh.tissue_names) if scene.tissues[n].bone]
+    return np.unique(mesh.tets[np.isin(mesh.tissue, bone_ids)])
+
+
+def table_nodes(mesh: TetMesh) -> np.ndarray:
+    """Boundary nodes on the bottom face z = z_min (to 1e-6 of the height)."""
+    ext, _ = boundary_faces(mesh.tets)
+    ext_nodes = np.unique(ext)
+    z = mesh.nodes[:, 2]
+    tol = 1e-6 * (z.max() - z.min())
+    return ext_nodes[z[ext_nodes] <= z.min() + tol]
 
 
 # The octant (signs of x, y, z from the prostate's centre) of each marker, in marker order.
@@ -44,7 +58,7 @@ def marker_nodes(mesh: TetMesh, surface: np.ndarray, n: int = 8) -> np.ndarray:
 def build_node_sets(mesh: TetMesh, scene: Scene) -> TetMesh:
     """Attach the named node sets the solver and the surrogate need."""
     names = mesh.tissue_names
-    patch, _ = guide.patch(mesh, scene.guide)
+    patch, _ = guide_patch.patch(mesh, scene.guide)
     sets = {"bones": bone_nodes(mesh, scene), "table": table_nodes(mesh), "guide_patch": patch}
     if "prostate" in names:
         surface = interface_nodes(mesh, names.index("prostate"))

@@ -212,29 +212,29 @@ def test_snapping_to_the_box_drops_the_tets_it_flattens():
 def test_guide_tip_seats_on_the_lumen_surface_on_its_axis(lm_mesh, lm_scene, tiny_scene):
     """A label map's tip seats where the guide axis through tip_mm crosses the meshed lumen: on the
     axis (not at the nearest node, up to a voxel to the side), on the lumen wall within a voxel."""
-    from fem_offline.fe import guide
+    from fem_offline.geometry import guide_patch
 
     assert lm_scene.guide.snap_to == "axis"  # the label-map default
     tip_mm, axis = np.asarray(lm_scene.guide.tip_mm), np.asarray(lm_scene.guide.axis, dtype=float)
-    seat = guide.seat(lm_mesh, lm_scene.guide)
+    seat = guide_patch.seat(lm_mesh, lm_scene.guide)
     off_axis = (seat.point - tip_mm) - ((seat.point - tip_mm) @ axis) * axis / (axis @ axis)
     np.testing.assert_allclose(off_axis, 0, atol=1e-9)
     assert seat.offset_mm < 1.0  # the phantom's tip is on the lumen wall; the voxel surface is within a voxel of it
     ph = tiny_scene.phantom
     r = np.linalg.norm(seat.point[:2] - np.asarray(ph.rectum_center_xy_mm))
     assert r == pytest.approx(ph.rectum_inner_radius_mm, abs=1.0)
-    np.testing.assert_array_equal(guide.tip(lm_mesh, lm_scene.guide), seat.point)
+    np.testing.assert_array_equal(guide_patch.tip(lm_mesh, lm_scene.guide), seat.point)
     # the point lies in a lumen face: its nearest lumen node is within one face's size of it
     assert np.linalg.norm(lm_mesh.nodes[seat.node] - seat.point) < 2 * lm_scene.mesh.guide_mm
-    by_node = guide.seat(lm_mesh, lm_scene.guide.model_copy(update={"snap_to": "node"}))
+    by_node = guide_patch.seat(lm_mesh, lm_scene.guide.model_copy(update={"snap_to": "node"}))
     np.testing.assert_array_equal(by_node.point, lm_mesh.nodes[by_node.node])
     assert by_node.offset_mm <= seat.offset_mm + np.linalg.norm(seat.point - lm_mesh.nodes[seat.node])
     far = lm_scene.guide.model_copy(update={"tip_mm": (0.0, -21.0, 35.0)})  # the lumen's axis: 7 mm off the wall
     with pytest.raises(ValueError, match=r"guide.tip_mm: .* along the guide axis from the rectal wall's lumen surface .*guide.snap_mm"):
-        guide.tip(lm_mesh, far)
+        guide_patch.tip(lm_mesh, far)
     aside = lm_scene.guide.model_copy(update={"tip_mm": (60.0, -14.0, 35.0)})  # its axis misses the rectum
     with pytest.raises(ValueError, match=r"guide.tip_mm: the guide axis .* never crosses the rectal wall's lumen surface"):
-        guide.tip(lm_mesh, aside)
+        guide_patch.tip(lm_mesh, aside)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("pygalmesh") is None, reason="CGAL's mesher needs pygalmesh (`make labelmesh`)")
