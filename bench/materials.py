@@ -7,7 +7,7 @@ client with every tissue given with its std (the targets: p99 <= 5 ms for marker
 full mesh). For a model without material inputs, whose timing does not depend on its weights, a material model of
 its mesh (a random PCA basis of --rank, a 1 x --width network, --tissues material inputs) is written to
 runs/bench_materials_model and timed in process beside it. Each request is timed through
-predict() (plan, locate, decode with std, interpolate) and the JSON reply built (routes.reply, its pieces
+predict() (plan, locate, decode with std, interpolate) and the JSON reply built (replies.reply, its pieces
 joined), p50 and p99 over --repeat calls on one thread: the service's work without HTTP. The same requests on
 --model itself (no materials) are the baseline.
 """
@@ -52,7 +52,7 @@ def timings(model: Path, repeat: int) -> dict[str, tuple[float, float]]:
     from service.info import model_info
     from service.model import Predictor, read_model_folder
     from service.predict import predict
-    from service.routes import reply
+    from service.replies import reply
     from service.schemas import predict_request_model
     from service.settings import Settings
 

@@ -13,7 +13,6 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from . import http
 from .access_log import JsonAccessLog, json_lines_logger
 from .auth import BearerAuth
-from .batching import Batcher
 from .docs import DOCS_PATHS, STATIC, add_offline_docs
 from .estimate_routes import Closing, estimate_router
 from .estimate_schemas import estimate_field_hints
@@ -22,8 +21,8 @@ from .info import model_info
 from .limits import PendingLimit, RateLimit
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, check_graph, onnx_session, read_model_folder
-from .predict import cheap_keys, predict_batch
-from .routes import HEALTH_PATHS, Serving, predict_router, router
+from .pipeline import Pipeline
+from .routes import HEALTH_PATHS, predict_router, router
 from .schemas import field_hints, predict_request_model
 from .settings import Settings
 from .viewer import viewer_router
@@ -47,27 +46,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         predictor = Predictor(folder, session=session)
-        if settings.batching:
-            app.state.batcher = Batcher(partial(predict_batch, predictor), max_batch=settings.batch_max_size,
-                                        max_delay_s=settings.batch_max_delay_ms / 1e3, max_queue=settings.max_pending,
-                                        lanes=settings.batch_lanes, preferred=settings.batch_preferred_sizes,
-                                        observe=app.state.metrics.observe_batch)
-            app.state.batcher.start()
+        pipeline = Pipeline.start(predictor, model=info.name, settings=settings, observe=app.state.metrics.observe_batch)
         app.state.predictor = predictor
         app.state.closing = Closing.of(predictor)  # /estimate and /plan
-        inline = cheap_keys(predictor, settings.inline_max_ms)
-        app.state.serving = Serving(predictor, app.state.batcher, info, inline)
-        log.info("decoded on the event loop when idle: %s", ", ".join(sorted(inline)) or "nothing")
+        app.state.pipeline = pipeline  # /predict
+        log.info("decoded on the event loop when idle: %s", ", ".join(sorted(pipeline.inline)) or "nothing")
         log.info("model %s loaded: %d nodes", info.name, len(folder.nodes))
         if igtl is not None:
             igtl.start(app.state.predictor)
         yield
         if igtl is not None:
             igtl.stop()
-        app.state.predictor = app.state.serving = app.state.closing = None
-        if app.state.batcher is not None:
-            await app.state.batcher.stop()
-            app.state.batcher = None
+        app.state.predictor = app.state.pipeline = app.state.closing = None
+        await pipeline.stop()
 
     app = FastAPI(
         title="Prostate deformation service",
@@ -78,7 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url=None,  # add_offline_docs serves /docs and /redoc without a CDN
         redoc_url=None,
     )
-    app.state.predictor = app.state.batcher = app.state.serving = app.state.closing = None
+    app.state.predictor = app.state.pipeline = app.state.closing = None
     app.state.info = info
     app.state.metrics = Metrics()
     app.state.field_hints = {**estimate_field_hints(info), **field_hints(info, settings.max_points)}

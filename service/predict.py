@@ -1,8 +1,9 @@
-"""Predictions as arrays, alone or batched: no HTTP here (the routes turn them into replies).
+"""Predictions as arrays, alone or batched: no HTTP here (service/pipeline.py turns them into replies).
 
-A request becomes a `Query` (which nodes to decode, and how to turn their displacement into the
-answer); full-mesh queries decode together in one onnxruntime call, so the basis is read once per
-batch instead of once per request. Every answer is the same bytes whether batched or not.
+A request becomes a `Query` (`plan`: which nodes to decode, and how to turn their displacement into the
+answer); `predict_batch` decodes queries, alone or many, and full-mesh queries decode together in one
+onnxruntime call, so the basis is read once per batch instead of once per request. Every answer is the
+same bytes whether batched or not.
 A material model's query carries its materials (theta and sigma, service/materials.py) and its answer the
 std of every returned point and the error budget.
 """
@@ -10,7 +11,6 @@ std of every returned point and the error budget.
 from __future__ import annotations
 
 import hashlib
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +19,6 @@ from contracts.interpolate import interpolate
 from contracts.tet10 import p2_weights
 
 from .materials import error_budget, material_vectors
-
 from .model import Predictor
 from .schemas import PredictRequestBase
 
@@ -98,16 +97,6 @@ def _with_std(predictor: Predictor, query: Query, answer: Prediction, std: np.nd
                       error_budget(predictor.budget_parts, query.region, std))
 
 
-def predict(predictor: Predictor, request: PredictRequestBase) -> Prediction:
-    """Deformed positions for a validated request: all nodes, one region's nodes, or interpolated points.
-
-    Raises OutsideMesh (from the predictor) naming the first point that lies in no tet.
-    """
-    query = plan(predictor, request)
-    u, std = decode(predictor, [query], query.nodes)
-    return finish(predictor, query, u[0], None if std is None else std[0])
-
-
 def predict_batch(predictor: Predictor, queries: list[Query]) -> list[Prediction]:
     """The predictions of many queries: one onnxruntime call per node set among them, in their order."""
     groups: dict[str, list[int]] = {}
@@ -130,23 +119,9 @@ def predict_batch(predictor: Predictor, queries: list[Query]) -> list[Prediction
     return out
 
 
-def decode_ms(predictor: Predictor, nodes: np.ndarray | None, *, repeats: int = 7) -> float:
-    """The fastest of `repeats` single-guide decodes of `nodes` (all when None), ms: the decode's own cost. A median
-    counts whatever else runs meanwhile, such as the other workers starting beside this one (10k nodes, all nodes, two
-    workers starting together on 2 cores: medians of 0.92 and 0.54 ms, against a 1 ms budget)."""
-    guide, times = np.array([[1.0, 0.0]]), []
-    predictor.decode(guide, nodes)  # the first call of a shape allocates
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        predictor.decode(guide, nodes)
-        times.append((time.perf_counter() - t0) * 1e3)
-    return min(times)
+def predict(predictor: Predictor, request: PredictRequestBase) -> Prediction:
+    """Deformed positions for a validated request: all nodes, one region's nodes, or interpolated points.
 
-
-def cheap_keys(predictor: Predictor, budget_ms: float) -> frozenset[str]:
-    """The batching keys (all nodes, each region) whose decode, measured now, takes at most `budget_ms`:
-    the ones worth decoding on the event loop rather than through a thread."""
-    if budget_ms <= 0:
-        return frozenset()
-    sets = {ALL_NODES: None, **{f"region:{name}": ids for name, ids in predictor.folder.regions.items()}}
-    return frozenset(key for key, nodes in sets.items() if decode_ms(predictor, nodes) <= budget_ms)
+    Raises OutsideMesh (from the predictor) naming the first point that lies in no tet.
+    """
+    return predict_batch(predictor, [plan(predictor, request)])[0]

@@ -20,6 +20,9 @@ import orjson
 from starlette.responses import Response
 
 from .http import BINARY, JSON
+from .predict import Prediction
+from .schemas import PredictRequestBase
+
 CHUNK_ROWS = 8192  # rows of a (k, 3) float32 array per orjson call: about 0.5 ms each
 JSON_WRITERS = threading.BoundedSemaphore(2)  # large arrays serialised at once (module docstring)
 SMALL_JSON_ROWS = 2048  # at most this many rows in all: serialised on the event loop in one call
@@ -85,3 +88,35 @@ class ChunkedResponse(Response):
             await send({"type": "http.response.body", "body": b"", "more_body": False})
         for i, piece in enumerate(self.pieces):
             await send({"type": "http.response.body", "body": piece, "more_body": i < last})
+
+
+def reply(request: PredictRequestBase, prediction: Prediction, *, fmt: str, model: str) -> Response:
+    """A prediction as JSON, or as raw little-endian float32 positions (count x 3); large JSON in pieces:
+    call it off the event loop unless `small_reply` says it is cheap."""
+    if fmt == "binary":
+        response = binary_reply(prediction.positions)
+        if prediction.budget is not None:  # a material model: the largest 1-sigma length at the returned points
+            response.headers["X-Std-Max-Mm"] = f"{prediction.budget['material_std_mm_max']:.6g}"
+        return response
+    scalars = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
+               "region": prediction.region, "count": len(prediction.positions)}
+    if prediction.budget is not None:
+        scalars["error_budget"] = prediction.budget
+    return ChunkedResponse(json_chunks(scalars, reply_arrays(prediction)))
+
+
+def reply_arrays(prediction: Prediction) -> dict[str, np.ndarray]:
+    arrays = {"positions": prediction.positions}
+    if prediction.displacements is not None:
+        arrays["displacements"] = prediction.displacements
+    if prediction.node_ids is not None:
+        arrays["node_ids"] = prediction.node_ids
+    if prediction.std is not None:
+        arrays["std_mm"] = prediction.std
+    return arrays
+
+
+def small_reply(prediction: Prediction, fmt: str) -> bool:
+    """Whether the reply costs so little to build that a thread hop would cost more: binary (no copy, no work)
+    or JSON of a few rows."""
+    return fmt == "binary" or rows_of(reply_arrays(prediction)) <= SMALL_JSON_ROWS

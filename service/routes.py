@@ -1,24 +1,21 @@
-"""The endpoints: thin handlers over `predict` and the app's state, reached through typed dependencies."""
+"""The endpoints: thin handlers over the app's state, reached through typed dependencies; POST /predict parses its
+body and request here, and service/pipeline.py plans, decodes and replies."""
 
 # No `from __future__ import annotations`: FastAPI must see the request model built in predict_router.
-from dataclasses import dataclass
 from typing import Annotated
 
-import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.routing import APIRoute
 from fastapi.responses import PlainTextResponse, Response
 from starlette.concurrency import run_in_threadpool
 
-from .batching import Batcher, QueueFull
 from .export import EXPORT_CONTENT, ExportFormat, export_response
 from .http import BINARY, JsonRequest, RequestProblem, reply_format, require_json
 from .info import ModelInfo
 from .limits import IN_FLIGHT
 from .metrics import FORMAT, TARGET, Metrics
 from .model import Predictor
-from .predict import Prediction, decode, finish, plan, predict
-from .replies import SMALL_JSON_ROWS, ChunkedResponse, binary_reply, json_chunks, rows_of
+from .pipeline import Pipeline
 from .schemas import ErrorReply, PredictReply, PredictRequestBase
 
 
@@ -29,25 +26,11 @@ async def get_predictor(request: Request) -> Predictor:
     return predictor
 
 
-async def get_batcher(request: Request) -> Batcher | None:
-    return request.app.state.batcher
-
-
-@dataclass(frozen=True)
-class Serving:
-    """What POST /predict needs, in one dependency (each dependency costs FastAPI some microseconds a request)."""
-
-    predictor: Predictor
-    batcher: Batcher | None  # None: batching is off
-    info: ModelInfo
-    inline: frozenset[str]  # batching keys decoded on the event loop when nothing else is decoding (predict.cheap_keys)
-
-
-async def get_serving(request: Request) -> Serving:
-    serving = request.app.state.serving
-    if serving is None:
+async def get_pipeline(request: Request) -> Pipeline:
+    pipeline = request.app.state.pipeline
+    if pipeline is None:
         raise HTTPException(503, detail="model not loaded")
-    return serving
+    return pipeline
 
 
 async def get_info(request: Request) -> ModelInfo:
@@ -60,10 +43,9 @@ async def get_metrics(request: Request) -> Metrics:
 
 # async: FastAPI would run a plain def dependency in the thread pool, a hop for a dict lookup
 PredictorDep = Annotated[Predictor, Depends(get_predictor)]
-BatcherDep = Annotated[Batcher | None, Depends(get_batcher)]  # None: batching is off
 InfoDep = Annotated[ModelInfo, Depends(get_info)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
-ServingDep = Annotated[Serving, Depends(get_serving)]
+PipelineDep = Annotated[Pipeline, Depends(get_pipeline)]
 
 HEALTH_PATHS = frozenset({"/healthz", "/readyz"})  # open even when auth is on, never rate-limited
 
@@ -99,68 +81,6 @@ async def readyz(predictor: PredictorDep, info: InfoDep) -> dict:
 async def metrics(m: MetricsDep) -> Response:
     """Prometheus text: request counts by region, format and status; latency histogram per region."""
     return Response(m.text(), media_type=m.content_type)
-
-
-def answer(predictor: Predictor, request: PredictRequestBase, *, fmt: str, model: str) -> Response:
-    """The prediction for a request as JSON, or as raw little-endian float32 positions (count x 3)."""
-    return reply(request, predict(predictor, request), fmt=fmt, model=model)
-
-
-def reply(request: PredictRequestBase, prediction: Prediction, *, fmt: str, model: str) -> Response:
-    """A prediction as JSON, or as raw little-endian float32 positions (count x 3); large JSON in pieces
-    (service/replies.py): call it off the event loop unless `small_reply` says it is cheap."""
-    if fmt == "binary":
-        response = binary_reply(prediction.positions)
-        if prediction.budget is not None:  # a material model: the largest 1-sigma length at the returned points
-            response.headers["X-Std-Max-Mm"] = f"{prediction.budget['material_std_mm_max']:.6g}"
-        return response
-    scalars = {"model": model, "displacement_mm": request.displacement_mm, "angle_deg": request.angle_deg,
-               "region": prediction.region, "count": len(prediction.positions)}
-    if prediction.budget is not None:
-        scalars["error_budget"] = prediction.budget
-    return ChunkedResponse(json_chunks(scalars, reply_arrays(prediction)))
-
-
-def reply_arrays(prediction: Prediction) -> dict[str, np.ndarray]:
-    arrays = {"positions": prediction.positions}
-    if prediction.displacements is not None:
-        arrays["displacements"] = prediction.displacements
-    if prediction.node_ids is not None:
-        arrays["node_ids"] = prediction.node_ids
-    if prediction.std is not None:
-        arrays["std_mm"] = prediction.std
-    return arrays
-
-
-def small_reply(prediction: Prediction, fmt: str) -> bool:
-    """Whether the reply costs so little to build that a thread hop would cost more: binary (no copy, no work)
-    or JSON of a few rows."""
-    return fmt == "binary" or rows_of(reply_arrays(prediction)) <= SMALL_JSON_ROWS
-
-
-async def respond(serving: Serving, body: PredictRequestBase, fmt: str, *, alone: bool) -> Response:
-    """Decode and reply. A cheap decode (`serving.inline`) of a request that arrived `alone` (no other /predict
-    in the service) runs right here on the event loop: a thread hop would cost more than it, and under load
-    the batcher's lanes decode on other cores while the loop does HTTP. Everything else (locating points, decoding, large JSON)
-    runs off the event loop, in the batcher's lanes or the thread pool, so it stays free for /healthz and
-    other requests (onnxruntime and numpy release the GIL; replies.py offers it back while writing JSON)."""
-    predictor, batcher, model = serving.predictor, serving.batcher, serving.info.name
-    query = plan(predictor, body) if body.points is None else None
-    if query is not None and alone and query.key in serving.inline and (batcher is None or batcher.idle):
-        u, std = decode(predictor, [query], query.nodes)
-        prediction = finish(predictor, query, u[0], None if std is None else std[0])
-    elif batcher is None:
-        return await run_in_threadpool(answer, predictor, body, fmt=fmt, model=model)
-    else:
-        query = query or await run_in_threadpool(plan, predictor, body)
-        try:
-            prediction = await batcher.submit(query)  # decoded with whatever else waits for the same nodes
-        except QueueFull as exc:
-            raise RequestProblem(503, field="request", type="overloaded", message=f"overloaded: {exc}",
-                                 headers={"Retry-After": "1"}) from None
-    if small_reply(prediction, fmt):
-        return reply(body, prediction, fmt=fmt, model=model)
-    return await run_in_threadpool(reply, body, prediction, fmt=fmt, model=model)
 
 
 PREDICT_RESPONSES = {
@@ -204,14 +124,14 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
             async def predict_handler(request: Request) -> Response:
                 require_json(request.headers.get("content-type"))
                 request = JsonRequest(request.scope, request.receive)
-                serving = request.app.state.serving
-                if self.direct and not request.scope["query_string"] and serving is not None:
+                pipeline = request.app.state.pipeline
+                if self.direct and not request.scope["query_string"] and pipeline is not None:
                     try:
                         body = PredictRequest.model_validate(await request.json())
                     except (ValueError, RequestProblem):  # pydantic's ValidationError, malformed JSON, not UTF-8
                         pass
                     else:
-                        return await handle(body, request, serving, None)
+                        return await handle(body, request, pipeline, None)
                 return await fastapi_handler(request)
 
             return predict_handler
@@ -219,7 +139,7 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
     predict_routes = APIRouter(route_class=PredictRoute)
 
     @predict_routes.post("/predict", response_model=PredictReply, responses=PREDICT_RESPONSES)
-    async def predict_endpoint(body: PredictRequest, request: Request, serving: ServingDep,  # type: ignore[valid-type]
+    async def predict_endpoint(body: PredictRequest, request: Request, pipeline: PipelineDep,  # type: ignore[valid-type]
                                export: Annotated[ExportFormat | None, Query(alias="format", description=(
                                    "vtu (volume), ply or glb (tissue surfaces): the whole deformed mesh as a file; "
                                    "with region or points, 422 (format_conflict)"))] = None):
@@ -229,13 +149,13 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
         positions, mm) interpolated inside their tet. Only what is asked for is decoded.
         With `?format=vtu|ply|glb`, the whole deformed mesh as a file (service/export.py).
         """
-        return await handle(body, request, serving, export)
+        return await handle(body, request, pipeline, export)
 
     return predict_routes
 
 
-async def handle(body: PredictRequestBase, request: Request, serving: Serving, export: ExportFormat | None) -> Response:
-    """POST /predict for a validated body: the deformed positions, or with `export` the mesh as a file."""
+async def handle(body: PredictRequestBase, request: Request, pipeline: Pipeline, export: ExportFormat | None) -> Response:
+    """POST /predict for a validated body: the deformed positions (pipeline.py), or with `export` the mesh as a file."""
     target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
     state = request.scope.setdefault("state", {})  # for the metrics middleware, which counts the reply
     state[TARGET] = target
@@ -245,7 +165,7 @@ async def handle(body: PredictRequestBase, request: Request, serving: Serving, e
     if export is not None:
         state[FORMAT] = export.value
         region = body.region.value if body.region is not None else None
-        return await run_in_threadpool(export_response, serving.predictor, displacement_mm=body.displacement_mm,
+        return await run_in_threadpool(export_response, pipeline.predictor, displacement_mm=body.displacement_mm,
                                        angle_deg=body.angle_deg, fmt=export, region=region, points=body.points)
     fmt = state[FORMAT] = reply_format(request.headers.get("accept"))
-    return await respond(serving, body, fmt, alone=state.get(IN_FLIGHT, 1) <= 1)
+    return await pipeline.respond(body, fmt, alone=state.get(IN_FLIGHT, 1) <= 1)

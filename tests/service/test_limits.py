@@ -41,17 +41,17 @@ def test_over_the_rate_gets_429_with_retry_after_per_client(settings):
 
 
 def test_a_full_service_answers_503_with_retry_after(settings, monkeypatch):
-    from service import app as app_module
+    from service import pipeline
 
     entered, release = threading.Event(), threading.Event()
-    real = app_module.predict_batch
+    real = pipeline.predict_batch
 
     def held(*args):
         entered.set()
         release.wait(5)
         return real(*args)
 
-    monkeypatch.setattr(app_module, "predict_batch", held)
+    monkeypatch.setattr(pipeline, "predict_batch", held)
     app = create_app(settings.model_copy(update={"max_pending": 1, "inline_max_ms": 0}))  # the first waits in the batcher
 
     async def scenario():

@@ -24,12 +24,3 @@ def test_a_point_outside_the_mesh_raises_naming_the_first_one(predictor, request
     with pytest.raises(OutsideMesh) as err:
         predict(predictor, body)
     assert err.value.index == 1 and err.value.point == lumen
-
-
-def test_cheap_keys_are_the_node_sets_decoded_within_the_budget(predictor):
-    from service.predict import ALL_NODES, cheap_keys
-
-    every = {ALL_NODES, *(f"region:{name}" for name in predictor.folder.regions)}
-    assert cheap_keys(predictor, 0.0) == frozenset()
-    assert cheap_keys(predictor, 10.0) == every  # a 10k-node decode takes about half a millisecond
-    assert cheap_keys(predictor, 1e-6) == frozenset()  # no decode is that fast

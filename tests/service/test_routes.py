@@ -141,20 +141,18 @@ def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch,
 
     import httpx
 
-    from service import app as app_module
-    from service import routes
+    from service import pipeline
     from service.app import create_app
 
     entered, release = threading.Event(), threading.Event()
-    module, name = (app_module, "predict_batch") if batching else (routes, "predict")
-    real = getattr(module, name)
+    real = pipeline.predict_batch  # every path decodes through it: the batcher's lanes, or one thread hop
 
     def held(*args):
         entered.set()
         release.wait(3)
         return real(*args)
 
-    monkeypatch.setattr(module, name, held)
+    monkeypatch.setattr(pipeline, "predict_batch", held)
     app = create_app(settings.model_copy(update={"batching": batching, "inline_max_ms": 0}))
 
     async def scenario():
