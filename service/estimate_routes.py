@@ -22,7 +22,7 @@ from .http import RequestProblem
 from .info import ModelInfo
 from .materials import material_vectors
 from .model import OutsideMesh, Predictor
-from .schemas import ErrorReply
+from .schemas import error_responses
 
 MIN_THETA_STD = 1e-4  # a stiffness std of ln E below this counts as this (0 would be an infinite weight)
 
@@ -162,15 +162,7 @@ async def get_closing(request: Request) -> Closing:
 
 ClosingDep = Annotated[Closing, Depends(get_closing)]
 
-ERRORS = {
-    400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
-    401: {"model": ErrorReply, "description": "no bearer token (when the service requires one)"},
-    403: {"model": ErrorReply, "description": "the bearer token is not accepted"},
-    413: {"model": ErrorReply, "description": "request body too large"},
-    422: {"model": ErrorReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"},
-    429: {"model": ErrorReply, "description": "over the client's rate limit; see Retry-After"},
-    503: {"model": ErrorReply, "description": "the model is not loaded yet"},
-}
+ERRORS = error_responses(unavailable="the model is not loaded yet")
 
 
 def estimate_router(info: ModelInfo, max_points: int) -> APIRouter:

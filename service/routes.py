@@ -16,7 +16,7 @@ from .limits import IN_FLIGHT
 from .metrics import FORMAT, TARGET, Metrics
 from .model import Predictor
 from .pipeline import Pipeline
-from .schemas import ErrorReply, PredictReply, PredictRequestBase
+from .schemas import PredictReply, PredictRequestBase, error_responses
 
 
 async def get_predictor(request: Request) -> Predictor:
@@ -88,15 +88,7 @@ PREDICT_RESPONSES = {
           "description": "JSON, or raw little-endian float32 (count x 3) when the Accept header prefers "
                          "`application/octet-stream` (a strictly higher q than JSON); "
                          "with `?format=vtu|ply|glb` the deformed mesh as a file"},
-    400: {"model": ErrorReply, "description": "the body is not UTF-8 text"},
-    406: {"model": ErrorReply, "description": "the Accept header allows neither JSON nor application/octet-stream"},
-    401: {"model": ErrorReply, "description": "no bearer token (when the service requires one)"},
-    403: {"model": ErrorReply, "description": "the bearer token is not accepted"},
-    413: {"model": ErrorReply, "description": "request body too large"},
-    415: {"model": ErrorReply, "description": "the body is not sent as application/json"},
-    422: {"model": ErrorReply, "description": "a field is invalid, out of the model's envelope, or outside the mesh"},
-    429: {"model": ErrorReply, "description": "over the client's rate limit; see Retry-After"},
-    503: {"model": ErrorReply, "description": "overloaded (too many requests in the service); see Retry-After"},
+    **error_responses(unavailable="overloaded (too many requests in the service); see Retry-After", negotiates=True),
 }
 
 
