@@ -49,7 +49,7 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
     import tomli_w
 
     from fem_offline.labelmap.io import write_label_map
-    from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
+    from studies.phantom_labelmap import labelmap_scene, voxelise
     from fem_offline.scene import load_scene
 
     phantom = load_scene(GRID_STUDY_SCENE)

@@ -15,8 +15,8 @@ import tomli_w
 
 from contracts.cli import number
 from fem_offline.labelmap.io import write_label_map
-from fem_offline.labelmap.fixtures import labelmap_scene, voxelise
 from fem_offline.scene import SceneError, load_scene
+from studies.phantom_labelmap import labelmap_scene, voxelise
 
 
 def write_labelmap(scene, spacing_mm: float, folder: Path, *, fmt: str = "nii.gz", name: str | None = None):

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from fem_offline.labelmap.io import write_label_map
-from fem_offline.labelmap.fixtures import labelmap_scene, linear_markers, reference_volumes, voxelise
 from fem_offline.labelmap.quality import face_owner_counts, min_dihedral_deg, radius_ratio, signed_volumes, tissue_volumes
 from fem_offline.scene import Scene, parse_scene
+from studies.phantom_labelmap import labelmap_scene, linear_markers, reference_volumes, voxelise
 
 log = logging.getLogger(__name__)
 

@@ -9,8 +9,8 @@ import pytest
 
 from contracts.files import sha256
 from fem_offline.labelmap.io import write_label_map
-from fem_offline.labelmap.fixtures import LABELS, labelmap_scene, voxelise
 from fem_offline.scene import load_scene
+from studies.phantom_labelmap import LABELS, labelmap_scene, voxelise
 
 SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offline" / "scenes"
 

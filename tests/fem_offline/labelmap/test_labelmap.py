@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from fem_offline.labelmap.io import read_label_map, write_label_map
-from fem_offline.labelmap.fixtures import LABELS, LUMEN, labelmap_scene, reference_volumes, voxelise
 from fem_offline.labelmap.meshers import voxel_tissues
 from fem_offline.labelmap.quality import is_conforming, signed_volumes, tissue_volumes
 from fem_offline.geometry.meshing import mesh_for_scene
 from fem_offline.scene import LabelMap, SceneError, parse_scene
+from studies.phantom_labelmap import LABELS, LUMEN, labelmap_scene, reference_volumes, voxelise
 
 # The meshers this machine has: CGAL (pygalmesh, `make labelmesh`, an 11-min compile CI leaves out) and
 # TetGen (a wheel, in the offline extra), so CI meshes label maps with TetGen.
@@ -165,7 +165,7 @@ def test_tissue_volumes_match_the_phantom(lm_mesh, lm_scene, tiny_scene):
 def test_linear_answer_at_the_markers_matches_the_gmsh_phantom(lm_mesh, lm_scene, tiny_scene, tiny_mesh):
     """Same push (10 mm, beta = 0, guide glued to its patch) on the gmsh phantom and on the label-map mesh,
     compared at the phantom's 8 markers; |u| there is about 0.6 mm."""
-    from fem_offline.labelmap.fixtures import linear_markers
+    from studies.phantom_labelmap import linear_markers
     from studies.meshers import PUSH, glued
 
     markers = tiny_mesh.nodes[tiny_mesh.node_sets["markers"]]

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from fem_offline.scene import anatomy
-from fem_offline.labelmap.fixtures import LABELS, LUMEN, voxelise
 from fem_offline.scene import Phantom, SceneError, load_scene, parse_scene
+from studies.phantom_labelmap import LABELS, LUMEN, voxelise
 
 from ..conftest import SCENES
 

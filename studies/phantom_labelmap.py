@@ -1,4 +1,7 @@
-"""A label map of the parametric phantom: the test fixture that stands in for a patient's segmentation.
+"""A label map of the parametric phantom: the fixture that stands in for a patient's segmentation.
+
+Studies and tests share it; it is not library code (linear_markers runs the linear solver), so it lives here,
+beside the studies that measure label-map meshes against the phantom.
 
 Each voxel takes the tissue at its centre, with phantom.py's priority where shapes overlap. The image
 covers the phantom's block exactly, so its volume is the block's; the rectal lumen is its own label,
