@@ -10,13 +10,13 @@ request in its own thread would.
 The queue delay adapts: only when the last batch had company does the collector wait for more,
 until the batch reaches the next preferred size (`preferred`, then `max_batch`) or the delay
 runs out; the delay is `max_delay_s` capped at a quarter of the recent batch run time, so a cheap
-decode (0.1 ms) never waits longer than it would take. It counts from when a lane is free, not
-from the first item's arrival as Triton's does: under load that item waited through the last
-batch, so a delay counted from it is over at once, and the clients whose replies were just sent
-never join; the load then splits into cohorts that alternate in half-size batches. Counted from
-the free lane, 8 clients of a 312k-node model on one core ran in batches of 5.9 to 7.6 instead of 4.1
-to 4.7, and served 218 to 233 req/s instead of 196 to 201. The queue is bounded: a full queue
-refuses new items (the route answers 503).
+decode never waits longer than it would take. It counts from when a lane is free, not from the
+first item's arrival as Triton's does: under load that item waited through the last batch, so a
+delay counted from it is over at once, and the clients whose replies were just sent never join;
+the load then splits into cohorts that alternate in half-size batches (why: CHANGELOG, "A batch's
+queue delay counts from when a lane is free"; the batch sizes it gives now are `mean_batch` in
+docs/results/bench_service.json). The queue is bounded: a full queue refuses new items (the route
+answers 503).
 """
 
 from __future__ import annotations

@@ -5,20 +5,20 @@
 module is its one owner: studies.results imports it from here.
 
 The defaults (`Concurrency.for_cores`) were chosen by measurement on a 2-core machine pinned to 1
-and 2 cores (bench/service.py, docs/results/bench_service.json); above 2 cores they are a rule,
-not a measurement. They depend on the model's basis (`Concurrency.for_model`):
+and 2 cores; above 2 cores they are a rule, not a measurement. Each default is served beside the
+alternatives it was chosen over in docs/results/bench_service_defaults.json (`python -m bench
+service-defaults`); the CHANGELOG says what each choice gained when it was made. They depend on the
+model's basis (`Concurrency.for_model`):
 * a large basis (over `CACHED_BASIS_BYTES`, streamed from memory on every decode): one worker
-  process below 8 cores, since a single process batches more (a paper-scale decode reads its whole
-  basis once per call, whatever the batch size; 2 cores, 312k nodes, 8 clients: 225 req/s against
-  190 with two workers). On 2 to 7 cores its one batch executor (lane) has onnxruntime threads for
-  every core and sends a batch as soon as it is free, so the clients fall into two cohorts, one
-  decoding while the other's replies are written: the same throughput as two lanes with a 5 ms
-  queue delay, and p99 about 40 % lower (see for_cores). On 1 core batches wait up to 5 ms to grow.
+  process below 8 cores, since a single process batches more (a decode reads the whole basis once
+  per call, whatever the batch size). On 2 to 7 cores its one batch executor (lane) has onnxruntime
+  threads for every core and sends a batch as soon as it is free, so the clients fall into two
+  cohorts, one decoding while the other's replies are written: the throughput of two lanes with a
+  queue delay, at a lower p99 (see for_cores). On 1 core batches wait up to MAX_DELAY_MS to grow.
 * a basis that stays in cache: a decode costs little per request whatever the batching, and one
   event loop's HTTP is the bottleneck, so one worker per core below 8 cores, each with one lane.
-  2 cores, 10k nodes, 8 clients: 1,458 req/s against 990 with one worker of two lanes. Each
-  worker's session has two onnxruntime threads (from 2 cores on), so a request that comes alone
-  decodes on two cores.
+  Each worker's session has two onnxruntime threads (from 2 cores on), so a request that comes
+  alone decodes on two cores.
 * from 8 cores, one worker per 4 cores for either, so HTTP and serialisation scale, each with two lanes.
 """
 
@@ -75,21 +75,18 @@ class Concurrency:
         per_worker = max(1, cores // workers)
         if not cached_basis and 2 <= cores < 8:
             # One lane on every core, batches sent as soon as the lane is free: 8 clients then split into two cohorts
-            # of 4, one decoding while the other's replies go out, as regular as a clock. 312k nodes, 2 cores, 8
-            # clients, full binary, 5 paired runs: p99 39.6 to 48.2 ms against 63.6 to 89.6 with two lanes and a
-            # 5 ms delay (batches of 7.3 with stragglers that wait a second cycle), at the same 219 against 217
-            # req/s. On 1 core the delay pays in throughput instead (210 req/s against 184 without it). Both are
-            # measured against their alternatives in docs/results/bench_service_defaults.json.
+            # of 4, one decoding while the other's replies go out, as regular as a clock; with two lanes and a delay,
+            # stragglers wait a second cycle and the p99 is higher at the same throughput. On 1 core the delay pays in
+            # throughput instead. why: docs/results/bench_service_defaults.json (each against its alternative)
             return cls(workers=1, lanes=1, threads=cores, max_delay_ms=0.0)
         lanes = min(2, per_worker)
         # A streamed basis gives each lane all the worker's cores: under load its batches are large and one lane often
-        # decodes alone while the other waits for company, and a lone batch's Gemm then runs on every core (312k nodes,
-        # 2 cores, 8 clients, two lanes: 274 req/s against 223). A cached one gives each lane its share of the worker's
-        # cores, but at least two where there are two: a lone request's decode then splits over two cores (10k: 0.96 ms
-        # on one thread, 0.59 on two; served, 1 client, full binary: p50 3.36 -> 2.40 ms, p99 4.18 -> 3.05), and under
-        # load the extra threads sleep rather than spin (contracts.model.onnx_session). Under load they cost some
-        # throughput: docs/results/bench_service_defaults.json has 8 clients on 2 cores against one thread. A lone
-        # request is the common case (a guide polling its answer each frame), so two threads
+        # decodes alone while the other waits for company, and a lone batch's Gemm then runs on every core. A cached
+        # one gives each lane its share of the worker's cores, but at least two where there are two: a lone request's
+        # decode then splits over two cores, and under load the extra threads sleep rather than spin
+        # (contracts.model.onnx_session). Under load they cost some throughput, but a lone request is the common case
+        # (a guide polling its answer each frame), so two threads. why: docs/results/bench_service_defaults.json
+        # (8 clients on 2 cores against one thread) and the CHANGELOG (a lone request on one thread and on two)
         threads = max(per_worker // lanes, min(2, cores)) if cached_basis else per_worker
         return cls(workers=workers, lanes=lanes, threads=threads)
 

@@ -87,7 +87,8 @@ class Pipeline:
 
 def decode_ms(predictor: Predictor, nodes: np.ndarray | None, *, repeats: int = 7) -> float:
     """The fastest of `repeats` single-guide decodes of `nodes` (all when None), ms: the decode's own cost. A median
-    would count whatever else runs meanwhile, such as the other workers starting beside this one."""
+    would count whatever else runs meanwhile, such as the other workers starting beside this one (why: CHANGELOG,
+    "judged by a decode's fastest time at start")."""
     guide, times = np.array([[1.0, 0.0]]), []
     predictor.decode(guide, nodes)  # the first call of a shape allocates
     for _ in range(repeats):

@@ -1,13 +1,13 @@
 """Reply bodies: raw float32 positions without a copy, and JSON written in pieces that never stall the event loop.
 
 orjson holds the GIL while it serialises. A 312k-node JSON reply (936k numbers, about 20 MB) takes
-tens of ms in one call, and the event loop, waiting for the GIL, answers nothing meanwhile (not
-even /healthz). So large arrays are serialised `CHUNK_ROWS` rows per call, in a worker thread that
-offers the GIL back between calls, and the pieces are sent as they are, one body message each,
-under one Content-Length: no join, no copy of the whole body. At most `JSON_WRITERS` large arrays
-are serialised at once: the event loop waits for the GIL behind every thread that wants it, and
-with eight 312k-node replies in flight on 2 cores /healthz answered in 58.9 ms (p99) with no bound,
-18.7 ms with 2 writers (22.6 JSON replies/s against 20.1) and 8.9 ms with 1 (18.6 replies/s).
+tens of ms in one call (`json_reply_ms` in docs/results/bench_service.json), and the event loop,
+waiting for the GIL, answers nothing meanwhile (not even /healthz). So large arrays are serialised
+`CHUNK_ROWS` rows per call, in a worker thread that offers the GIL back between calls, and the
+pieces are sent as they are, one body message each, under one Content-Length: no join, no copy of
+the whole body. At most `JSON_WRITERS` large arrays are serialised at once: the event loop waits
+for the GIL behind every thread that wants it, so each writer more delays /healthz, and each fewer
+costs JSON throughput (why: CHANGELOG, "At most two large JSON arrays are serialised at once").
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from .http import BINARY, JSON
 from .predict import Prediction
 from .schemas import PredictRequestBase
 
-CHUNK_ROWS = 8192  # rows of a (k, 3) float32 array per orjson call: about 0.5 ms each
+CHUNK_ROWS = 8192  # rows of a (k, 3) float32 array per orjson call: short enough that the loop gets the GIL often
 JSON_WRITERS = threading.BoundedSemaphore(2)  # large arrays serialised at once (module docstring)
 SMALL_JSON_ROWS = 2048  # at most this many rows in all: serialised on the event loop in one call
 LAYOUT = "float32 little-endian, count x 3 (x, y, z) mm, deformed positions"

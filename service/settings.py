@@ -39,8 +39,8 @@ class Settings(BaseSettings):
 
     # Dynamic batching (service/batching.py): requests that arrive together decode in one onnxruntime call.
     batching: bool = Field(True, description="decode concurrent requests with the same node set together")
-    # 16: at 312k nodes a decode reads the whole basis once per call, so a batch of 16 costs 1.5x one of 8 on
-    # one core (bench/service.py's decode table); at 10k nodes batches rarely pass 8
+    # 16: at 312k nodes a decode reads the whole basis once per call, so a batch of 16 costs far less than two of
+    # 8 (python -m bench service's decode table; CHANGELOG); at 10k nodes batches rarely pass 8
     batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 16
     batch_preferred_sizes: CommaInts = Field([], description=(
         "batch sizes worth waiting for (as Triton's preferred_batch_size), comma-separated; none: only the largest"))

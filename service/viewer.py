@@ -67,9 +67,9 @@ def drawn_nodes(folder: ModelFolder) -> np.ndarray:
 def frame_requests(folder: ModelFolder, node_ids: np.ndarray) -> list[str | None]:
     """The regions a frame asks /predict for: the region cover, or [None] (the whole mesh) where it holds most of it.
 
-    A request costs the page about 5 ms of browser and HTTP overhead whatever its size, and
-    decoding and sending 10k more nodes far less (scripts/bench_viewer.py); the translucent
-    fat's region alone is most of the mesh, so one whole-mesh binary request is then cheaper.
+    A request costs the page a fixed browser and HTTP overhead whatever its size, and decoding and
+    sending 10k more nodes far less (`python -m bench viewer`, its fetch-only rounds; CHANGELOG); the
+    translucent fat's region alone is most of the mesh, so one whole-mesh binary request is then cheaper.
     """
     cover = region_cover(folder, node_ids)
     return [None] if sum(len(folder.regions[r]) for r in cover) >= WHOLE_MESH_FRACTION * len(folder.nodes) else cover
