@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import loadtest
 from service.estimate import StateSpace, point_set, positions
 from service.estimate_routes import Closing, run_estimate, run_plan
 from service.estimate_schemas import estimate_request_model, plan_request_model
@@ -27,6 +26,7 @@ from service.info import model_info
 from service.model import Predictor, read_model_folder
 from service.settings import DEFAULT_MODEL, Settings
 
+from bench import loadtest
 from studies import results
 
 FPS = 30.0

@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from bench import loadtest
 from service.info import model_info
 from service.model import OutsideMesh, Predictor, read_model_folder
 from service.predict import predict
 from service.schemas import predict_request_model
 from service.settings import DEFAULT_MODEL, Settings
 
+from bench import loadtest
 from bench._report import Report
 from studies import results
 

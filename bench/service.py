@@ -31,12 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from contracts.model import read_manifest
-from bench import loadtest
 from service.cores import Concurrency, basis_bytes, usable_cores
 from service.settings import DEFAULT_MODEL
 from studies import results
 
-from . import paper_decoder
+from . import loadtest, paper_decoder
 
 # (name, region, format, clients) per model size; the large model's JSON row also polls /healthz
 SMALL = [("markers binary 1", "markers", "binary", 1), ("full binary 1", None, "binary", 1),
@@ -271,6 +270,13 @@ def add_run_flags(ap: argparse.ArgumentParser) -> None:
     results.add_publish_flag(ap)
 
 
+def model_name(model: Path) -> str:
+    """A model folder as a result names it: relative to the repository (a committed result holds no machine's
+    paths), or as given when it lies outside."""
+    path = Path(model).resolve()
+    return path.relative_to(results.ROOT).as_posix() if path.is_relative_to(results.ROOT) else str(model)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench service", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -298,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{p['decode_capacity_rps']:.0f} req/s; outside onnxruntime: reference positions "
                   f"{p['reference_positions_ms']:.3f} ms, binary reply {p['binary_reply_ms']:.4f} ms, "
                   f"JSON reply {p['json_reply_ms']:.2f} ms")
-        data["models"][str(model)] = entry
+        data["models"][model_name(model)] = entry
     data["load_at_end"] = os.getloadavg()[0]
     from .service_targets import cpu_rows, readme_rows, targets
 

@@ -25,7 +25,7 @@ from service.settings import DEFAULT_MODEL
 from studies import results
 
 from . import paper_decoder
-from .service import add_run_flags, core_sets, served, versions
+from .service import add_run_flags, core_sets, model_name, served, versions
 
 FULL_1, FULL_8 = ("full binary 1", None, "binary", 1), ("full binary 8", None, "binary", 8)
 
@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
             rows = served(model, cores, args.duration, large=not cached, repeats=args.repeats,
                           candidates=[(label(c), flags(c)) for c in options],
                           scenarios=[FULL_1, FULL_8] if cached else [FULL_8])
-            data["rows"] += [{"model": str(model), "n_nodes": n_nodes, "cached_basis": cached,
+            data["rows"] += [{"model": model_name(model), "n_nodes": n_nodes, "cached_basis": cached,
                               "default": r["config"] == label(default), **r} for r in rows]
     data["load_at_end"] = os.getloadavg()[0]
     data["defaults_summary"] = summarise(data["rows"])

@@ -27,13 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.browser import add_target, drag, launch_chromium, open_viewer, paced_drag
-from bench.loadtest import local_service
 from service.model import read_model_folder
 from service.settings import DEFAULT_MODEL
 from service.viewer import drawn_nodes, region_cover
 
 from bench._report import Report
+from bench.browser import add_target, drag, launch_chromium, open_viewer, paced_drag
+from bench.loadtest import local_service
 from studies import results
 
 # `n` rounds; in each, every way (a list of /predict bodies fetched in parallel) once, in turn.

@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from bench.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, drag, launch_chromium, open_viewer, \
-    set_slider
-from bench.loadtest import local_service
 from service.settings import DEFAULT_MODEL
 
 from bench._report import Report
+from bench.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, drag, launch_chromium, open_viewer, \
+    set_slider
+from bench.loadtest import local_service
 from studies import results
 
 
