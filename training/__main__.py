@@ -12,9 +12,9 @@ import sys
 from pathlib import Path
 
 # One thread for numpy and torch unless the caller sets otherwise, before either loads (as `python -m studies tradeoff`):
-# the fit's round-off, and so where L-BFGS stops, then does not depend on the cores or the machine's load. On
-# models/default's sweep, 2 threads beside an FE job stopped at a fit 0.33 mm off at one off-grid case; 1 thread
-# gives the same model.onnx byte for byte on every run, 0.0076 mm off there, in 36 s.
+# the fit's round-off, and so where L-BFGS stops, then does not depend on the cores or the machine's load, and a rerun
+# gives the same model.onnx byte for byte. With more threads on a busy machine the fit can stop far from where one
+# thread takes it (CHANGELOG, issue 50).
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -15,7 +15,7 @@ pieces, adding its inputs between the network and the decode.
 An `If` on `Size(nodes) > 0` picks the branch, and onnxruntime runs only the branch taken: a
 full-mesh call is one Gemm over the basis; a subset call gathers the 3k basis rows first and
 costs O(k * rank), not O(n_nodes * rank), which is why the service's marker requests are far cheaper
-than full-mesh ones (docs/results/bench_service.json). Rejected after measuring (CHANGELOG): two
+than full-mesh ones (docs/results/bench_service.json). Rejected after measuring: two
 outputs in one graph (onnxruntime ran the full decode even when only the subset output was fetched),
 and a `nodes` input defaulting to every node (copies the whole basis on each call). A second graph for
 subsets would store the basis twice.
@@ -99,9 +99,9 @@ def network_nodes(layers) -> tuple[list, list]:
 def basis_nodes(pca: Pca, dtype) -> tuple[onnx.TensorProto, list, str]:
     """(the `basis` initializer in `dtype`, the nodes casting it to float32 if it is not, the float32 basis's name).
 
-    Node-major (3 n_nodes, rank + 1), the mean as the last column: a subset gathers contiguous rows, which
-    is faster than gathering columns of (rank, 3 n_nodes) (CHANGELOG), and the full Gemm with transB runs
-    as fast."""
+    Node-major (3 n_nodes, rank + 1), the mean as the last column: a subset gathers contiguous rows, much
+    faster than gathering columns of (rank, 3 n_nodes) (CHANGELOG, issue 50), and the full Gemm with transB
+    runs as fast."""
     basis = initializer("basis", np.ascontiguousarray(np.vstack([pca.basis, pca.mean]).T).astype(dtype))
     if dtype != np.float32:
         return basis, [helper.make_node("Cast", ["basis"], ["basis32"], to=TensorProto.FLOAT)], "basis32"
@@ -132,7 +132,8 @@ def decode_nodes(weights: str, basis: str, output: str, *, full_shape: list, sub
     return [
         helper.make_node("Size", ["nodes"], ["n_requested"]),
         helper.make_node("Greater", ["n_requested", "zero"], ["is_subset"]),
-        helper.make_node("If", ["is_subset"], [output], then_branch=branch("node_subset", "basis_k", gather, "k", subset_shape),
+        helper.make_node("If", ["is_subset"], [output],
+                         then_branch=branch("node_subset", "basis_k", gather, "k", subset_shape),
                          else_branch=branch("full_mesh", basis, [], "full", full_shape)),
     ]
 

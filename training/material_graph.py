@@ -14,7 +14,7 @@ is [1, theta] . w (one row) and the std's rows are sigma_i w_i; the 1 + m rows a
 rank + 1) weights with the basis, in either branch of the `If` on the node subset, so a subset call still gathers
 only its 3k basis rows. The variance sum_i (sigma_i S_i)^2 is a MatMul with ones over the m rows, not
 onnxruntime's Mul + ReduceSum over that axis (the graph's first form), which cost half as much as the Gemm itself
-(CHANGELOG, where `training regraph` rebuilt models/default with it).
+(CHANGELOG: the entry where `training regraph` rebuilt models/default with it).
 
 The graph is export.py's, extended: the same network nodes, basis and node-subset decode, with the material
 inputs combined into the decode's weights before it and the std taken after it.

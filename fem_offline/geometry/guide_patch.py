@@ -69,7 +69,7 @@ def seat(mesh: TetMesh, guide: Guide) -> Seat:
     crossing nearest tip_mm. The tip stays on the axis the user gave: a label map's lumen is a
     smoothed staircase whose nodes lie up to a voxel to the side of any given point, so the nearest
     node puts the push off the midline of a mirror-symmetric anatomy, and its left and right markers
-    then move apart where the phantom's move alike (`python -m studies labelmap-truth`; CHANGELOG).
+    then move apart where the phantom's move alike (`python -m studies labelmap-truth`; CHANGELOG, issue 50).
     "node": the lumen node nearest tip_mm (label-map scenes before snap_to existed).
     """
     faces = _lumen_faces(mesh)

@@ -246,7 +246,7 @@ def flat_on_box(points_index: np.ndarray, tets: np.ndarray, shape) -> np.ndarray
     """Mask (m,) of the tets whose four corners lie in one face of the image box: no volume once snapped.
 
     A mesher that approximates the box's faces within a tolerance leaves thin tets on them, all four
-    corners within a quarter voxel of the face (CGAL at 0.5 mm voxels: one of 44,807). Snapping puts
+    corners within a quarter voxel of the face (CGAL does, rarely: CHANGELOG, issue 50). Snapping puts
     them in the plane; dropping them leaves their two inner faces as the box face, which they now are.
     """
     lo, hi = np.full(3, -0.5), np.asarray(shape, dtype=np.float64) - 0.5
