@@ -1,2 +1,2 @@
-"""Segmentation label maps: I/O (NIfTI, NRRD), surface nets, the tet meshers (CGAL, TetGen, fTetWild), quality
-checks and the voxelised-phantom fixtures the tests and studies use."""
+"""Segmentation label maps: I/O (NIfTI, NRRD), surface nets, the tet meshers (CGAL, TetGen, fTetWild) and quality
+checks. The voxelised-phantom fixture the tests and studies use is studies/phantom_labelmap.py."""
