@@ -15,7 +15,7 @@ IMAGE ?= deform-service
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
 # The viewer's browser tests drive Debian's chromium through Playwright (no browser download); its
-# WebGL runs on Mesa's llvmpipe through EGL (bench/browser.py: half SwiftShader's CPU a frame).
+# WebGL runs on Mesa's llvmpipe through EGL (tools/browser.py: half SwiftShader's CPU a frame).
 BROWSER_DEBS := chromium libegl-mesa0 libgl1-mesa-dri
 # three.js from npm (viewer/package-lock.json), copied where the service serves it; the copies are committed.
 VIEWER_VENDOR := service/static/viewer/vendor

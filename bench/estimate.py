@@ -26,8 +26,8 @@ from service.info import model_info
 from service.model import Predictor, read_model_folder
 from service.settings import DEFAULT_MODEL, Settings
 
-from bench import loadtest
 from studies import results
+from tools import loadtest
 
 FPS = 30.0
 

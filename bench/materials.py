@@ -82,10 +82,10 @@ def timings(model: Path, repeat: int) -> dict[str, tuple[float, float]]:
 
 
 def served(model: Path, duration_s: float) -> dict[str, dict]:
-    """/predict over loopback HTTP on one client (bench/loadtest.py), every request with each tissue's E at its
+    """/predict over loopback HTTP on one client (tools/loadtest.py), every request with each tissue's E at its
     nominal value and the scene's std (the uncertainty on): markers + 100 points (JSON) and the full mesh (JSON and
     binary). The service runs with its defaults, access log off."""
-    from bench import loadtest
+    from tools import loadtest
     from service.model import read_model_folder
 
     folder = read_model_folder(model)

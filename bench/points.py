@@ -28,9 +28,9 @@ from service.predict import predict
 from service.schemas import predict_request_model
 from service.settings import DEFAULT_MODEL, Settings
 
-from bench import loadtest
 from bench._report import Report
 from studies import results
+from tools import loadtest
 
 
 def point_sets(folder, n: int, lumen_mm: list[float], seed: int = 0) -> dict[str, np.ndarray]:

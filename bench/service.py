@@ -6,7 +6,7 @@ For each core set (the service pinned with taskset; on more than one core the cl
 process's threads, are pinned to the other cores where there are any, else share them), each
 model and each configuration (batching off with the default workers, off with one worker per
 core, on with the defaults), starts `python -m service` on a free loopback port and loads it with
-bench/loadtest.py for each scenario. The paper-scale decoder (bench/paper_decoder.py) is built
+tools/loadtest.py for each scenario. The paper-scale decoder (bench/paper_decoder.py) is built
 into runs/ first when missing. Beside the served figures it measures, pinned to the same cores:
 the in-process decode capacity (onnxruntime, batches of 8, the best of three lane and thread counts) and the
 per-request work outside onnxruntime (reference positions, reply bodies), alone; and in every row the CPU
@@ -34,8 +34,9 @@ from contracts.model import read_manifest
 from service.cores import Concurrency, basis_bytes, usable_cores
 from service.settings import DEFAULT_MODEL
 from studies import results
+from tools import loadtest
 
-from . import loadtest, paper_decoder
+from . import paper_decoder
 
 # (name, region, format, clients) per model size; the large model's JSON row also polls /healthz
 SMALL = [("markers binary 1", "markers", "binary", 1), ("full binary 1", None, "binary", 1),

@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench._report import Report
-from bench.loadtest import loopback, read_reply
 from studies import results
+from tools.loadtest import loopback, read_reply
 
 MAX_DURATION_S = 3600.0
 LUMEN_MM = [0.0, -21.0, 40.0]  # inside the mesh's bounding box, in the rectal lumen: in no tet

@@ -5,11 +5,11 @@
 Starts `python -m service` on a loopback port, opens /viewer and prints the page's own figures
 (window.__viewer, the 'viewer-frame' events):
   * stepwise drag: `--moves` slider values, each step fires `input`, waits for its frame and
-    pauses `--pause-ms` (bench.browser.drag); without targets, then with one clicked target.
+    pauses `--pause-ms` (tools.browser.drag); without targets, then with one clicked target.
     Slider to frame is from the input event to WebGL finished (gl.finish); with the /predict
     replies (fetch, split by the page's Resource Timing) and the render as parts of it;
   * paced drag: `--moves` inputs every `--interval-ms` whatever the frames do, as a pointer fires
-    them (bench.browser.paced_drag). The page keeps one frame in flight and coalesces the rest,
+    them (tools.browser.paced_drag). The page keeps one frame in flight and coalesces the rest,
     so a frame is timed from the latest input it shows and, separately, from the first input it
     answers (the oldest one coalesced into it);
   * fetch only: the ways a frame could be fetched, interleaved in each of `--rounds` rounds.
@@ -32,9 +32,9 @@ from service.settings import DEFAULT_MODEL
 from service.viewer import drawn_nodes, region_cover
 
 from bench._report import Report
-from bench.browser import add_target, drag, launch_chromium, open_viewer, paced_drag
-from bench.loadtest import local_service
 from studies import results
+from tools.browser import add_target, drag, launch_chromium, open_viewer, paced_drag
+from tools.loadtest import local_service
 
 # `n` rounds; in each, every way (a list of /predict bodies fetched in parallel) once, in turn.
 FETCH_ROUNDS = """async ([ways, n]) => { const out = ways.map(() => []);

@@ -2,13 +2,13 @@
 
     python -m bench viewer-backends [--model models/default] [--frames 20] [--moves 300]
 
-For SwiftShader and Mesa's llvmpipe (bench.browser's two flag sets), with multisampling on and
+For SwiftShader and Mesa's llvmpipe (tools.browser's two flag sets), with multisampling on and
 off (/viewer?antialias=1 or 0; scale=1, every frame at full resolution), starts chromium on
 /viewer of `python -m service` and prints:
   * the CPU time chromium's GPU process spends per frame: `--frames` slider moves, each waited
     for and followed by a 0.3 s rest, so one frame's work is all that runs; summed over the GPU
     process's threads (psutil), divided by the frames;
-  * slider to frame over a stepwise drag of `--moves` moves (bench.browser.drag, 30 ms pauses),
+  * slider to frame over a stepwise drag of `--moves` moves (tools.browser.drag, 30 ms pauses),
     p50 / p99 / max, and how many frames' render took over 200 ms.
 No GPU is used: headless chromium rasterises in software, on the cores the service shares.
 """
@@ -25,10 +25,10 @@ import psutil
 from service.settings import DEFAULT_MODEL
 
 from bench._report import Report
-from bench.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, drag, launch_chromium, open_viewer, \
-    set_slider
-from bench.loadtest import local_service
 from studies import results
+from tools.browser import LLVMPIPE_FLAGS, SWIFTSHADER_FLAGS, drag, launch_chromium, open_viewer, \
+    set_slider
+from tools.loadtest import local_service
 
 
 def gpu_process_cpu_s() -> float:

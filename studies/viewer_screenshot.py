@@ -1,10 +1,10 @@
-"""Screenshot of the viewer on a model, as the README shows it: the real page in headless chromium (bench.browser).
+"""Screenshot of the viewer on a model, as the README shows it: the real page in headless chromium (tools.browser).
 
     python -m studies viewer-screenshot [--model models/default] [--displacement-mm 10] [--angle-deg 0]
                                         [--targets 1] [--zoom 1.6] [--publish]
 
 Starts `python -m service --model M`, opens /viewer, moves the sliders as a user would, clicks the
-prostate `--targets` times (bench.browser.add_target), zooms towards the prostate with the
+prostate `--targets` times (tools.browser.add_target), zooms towards the prostate with the
 mouse wheel until the camera is `--zoom` times closer, and saves the page, 1280 x 800, as
 runs/viewer.png, or with --publish as docs/img/viewer.png (the image the docs show).
 """
@@ -14,10 +14,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.browser import add_target, open_viewer, set_slider, wait_still
-from bench.loadtest import local_service
 from service.settings import DEFAULT_MODEL
 from studies.results import ROOT
+from tools.browser import add_target, open_viewer, set_slider, wait_still
+from tools.loadtest import local_service
 
 
 def zoom(page, factor: float) -> None:

@@ -1,8 +1,8 @@
 """bench estimate against a served tiny model: uvicorn serves the estimate stream, and every frame gets its reply."""
 
 from bench.estimate import bodies, served, stream
-from bench import loadtest
 from service.model import Predictor, read_model_folder
+from tools import loadtest
 
 
 def test_the_served_routes_and_the_stream_answer_every_request(tiny_model):

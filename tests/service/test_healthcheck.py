@@ -4,7 +4,7 @@ import os
 import subprocess
 import sys
 
-from bench.loadtest import free_port
+from tools.loadtest import free_port
 
 from .test_main import _serve
 

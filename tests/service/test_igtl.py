@@ -11,9 +11,9 @@ import pytest
 from fastapi.testclient import TestClient
 from pyigtl.messages import CRC64
 
-from bench.loadtest import free_port
 from service.guide import Guide, OffAxisPose
 from service.igtl import POINTS_NAME, STATUS_NAME, Responder, read_message
+from tools.loadtest import free_port
 
 from .helpers import predict_json, prostate_point
 

@@ -13,7 +13,7 @@ from contextlib import contextmanager
 
 import pytest
 
-from bench.loadtest import free_port
+from tools.loadtest import free_port
 
 from .conftest import DEFAULT
 

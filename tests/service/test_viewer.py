@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from .helpers import predict_json
 
-from bench.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
 from service.viewer import STATIC
+from tools.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
 
 needs_chromium = pytest.mark.skipif(find_chromium() is None,
                                     reason="no chromium on PATH (make system-deps installs Debian's chromium)")
@@ -128,7 +128,7 @@ def test_page_loads_without_errors_with_the_envelope_on_its_sliders(viewer, tiny
 
 @needs_chromium
 def test_webgl_runs_on_the_software_backend_chosen_and_multisamples_only_on_hardware(viewer):
-    from bench.browser import LLVMPIPE_FLAGS, webgl_flags
+    from tools.browser import LLVMPIPE_FLAGS, webgl_flags
 
     page, _, _ = viewer
     state = page.evaluate("({webgl: __viewer.webgl, antialias: __viewer.antialias, "

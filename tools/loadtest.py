@@ -1,7 +1,7 @@
 """Load-test a running service on loopback: N clients for T seconds (or R requests), JSON or binary.
 
-    python -m bench loadtest --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
-    python -m bench loadtest --region markers --requests 2000
+    python -m tools.loadtest --url http://127.0.0.1:8000 --concurrency 8 --duration 10 --format binary
+    python -m tools.loadtest --region markers --requests 2000
 
 Each client holds one keep-alive connection and sends random (displacement, angle) inside the
 model's envelope (read from GET /model). Prints p50/p95/p99/max latency, throughput and errors.
@@ -246,7 +246,7 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench loadtest", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m tools.loadtest", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--url", default="http://127.0.0.1:8000")
     ap.add_argument("--concurrency", type=int, default=1)

@@ -17,7 +17,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-from bench.loadtest import free_port
+from .loadtest import free_port
 
 CHROMIUM = ("chromium", "chromium-browser")
 SWIFTSHADER_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]

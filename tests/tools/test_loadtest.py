@@ -11,9 +11,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-import bench
-from bench import loadtest
-from studies._cli import dispatch
+from tools import loadtest
 
 
 class _Failing(BaseHTTPRequestHandler):
@@ -62,7 +60,7 @@ def test_a_failing_warm_up_ends_the_run_with_the_reply(failing_url):
 
 
 def test_the_cli_says_so_and_exits_2(failing_url, capsys):
-    assert dispatch(bench, ["loadtest", "--url", failing_url, "--concurrency", "2", "--duration", "1"]) == 2
+    assert loadtest.main(["--url", failing_url, "--concurrency", "2", "--duration", "1"]) == 2
     assert "error: a warm-up request" in capsys.readouterr().err
 
 
