@@ -22,7 +22,7 @@ from .limits import PendingLimit, RateLimit
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, check_graph, onnx_session, read_model_folder
 from .pipeline import Pipeline
-from .routes import HEALTH_PATHS, predict_router, router
+from .routes import HEALTH_PATHS, outside_mesh, predict_router, router
 from .schemas import field_hints, predict_request_model
 from .settings import Settings
 from .viewer import viewer_router
@@ -75,7 +75,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.field_hints = {**estimate_field_hints(info), **field_hints(info, settings.max_points)}
     app.add_exception_handler(RequestValidationError, http.invalid_request)
     app.add_exception_handler(StarletteHTTPException, http.http_problem)
-    app.add_exception_handler(OutsideMesh, http.outside_mesh)
+    app.add_exception_handler(OutsideMesh, outside_mesh)
     app.include_router(predict_router(predict_request_model(info, settings.max_points)))
     app.include_router(estimate_router(info, settings.max_points))
     app.include_router(router)

@@ -12,8 +12,6 @@ from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
 
-from .model import OutsideMesh
-
 BINARY = "application/octet-stream"
 JSON = "application/json"
 ReplyFormat = Literal["json", "binary"]
@@ -138,13 +136,6 @@ async def http_problem(request: Request, exc: StarletteHTTPException) -> OrjsonR
     else:
         error = ("body" if exc.status_code == 400 else "request", str(exc.detail), f"http_{exc.status_code}")
     return error_reply(exc.status_code, [error], headers=exc.headers)
-
-
-async def outside_mesh(request: Request, exc: OutsideMesh) -> OrjsonResponse:
-    """422 for a point that lies in no tet (the rectal lumen is a hole in the mesh)."""
-    field = f"points.{exc.index}"
-    return error_reply(422, [(field, f"{field}: {exc.point} is outside the mesh ({_hints(request)['points']})",
-                              "outside_mesh")])
 
 
 class BodyLimit:

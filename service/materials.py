@@ -36,6 +36,8 @@ from contracts.materials import (HALO_SIGMAS, MaterialInput, MaterialsInfo, Outs
                                  shear_wave_from_youngs_m_s, sigma_ln_e, youngs_from_shear_wave_kpa)
 from contracts.model import ModelManifest
 
+from .http import RequestProblem
+
 NO_MATERIALS = "this model takes no material inputs"
 STD_SIGMAS = HALO_SIGMAS  # total_mm counts the material uncertainty at 2 std, as the viewer and OpenIGTLink draw it
 # judged by ratios, a value may be this factor off its nominal either way: a common scale of 1e-6 .. 1e6 is far past
@@ -153,8 +155,6 @@ def material_vectors(info: MaterialsInfo, given: BaseModel | None) -> np.ndarray
         try:
             out[0] = ratio_point(out[0].tolist(), lo, hi, info.tissues)
         except OutsideBox as exc:
-            from .http import RequestProblem  # here: service.http imports the predictor, which imports this module
-
             named = exc.stiff if getattr(given, exc.stiff, None) is not None or getattr(given, exc.soft) is None \
                 else exc.soft
             field = f"materials.{named}"

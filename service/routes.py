@@ -10,11 +10,11 @@ from fastapi.responses import PlainTextResponse, Response
 from starlette.concurrency import run_in_threadpool
 
 from .export import EXPORT_CONTENT, ExportFormat, export_response
-from .http import BINARY, JsonRequest, RequestProblem, reply_format, require_json
+from .http import BINARY, JsonRequest, RequestProblem, error_reply, reply_format, require_json
 from .info import ModelInfo
 from .limits import IN_FLIGHT
 from .metrics import FORMAT, TARGET, Metrics
-from .model import Predictor
+from .model import OutsideMesh, Predictor
 from .pipeline import Pipeline
 from .schemas import PredictReply, PredictRequestBase, error_responses
 
@@ -81,6 +81,12 @@ async def readyz(predictor: PredictorDep, info: InfoDep) -> dict:
 async def metrics(m: MetricsDep) -> Response:
     """Prometheus text: request counts by region, format and status; latency histogram per region."""
     return Response(m.text(), media_type=m.content_type)
+
+
+async def outside_mesh(request: Request, exc: OutsideMesh) -> Response:
+    """422 for a point that lies in no tet (the rectal lumen is a hole in the mesh)."""
+    field, hint = f"points.{exc.index}", request.app.state.field_hints["points"]
+    return error_reply(422, [(field, f"{field}: {exc.point} is outside the mesh ({hint})", "outside_mesh")])
 
 
 PREDICT_RESPONSES = {

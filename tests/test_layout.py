@@ -123,3 +123,46 @@ def test_no_test_fixture_lives_in_a_library_package():
             targets = ([a.name for a in node.names] if isinstance(node, ast.Import) else
                        [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             assert not [t for t in targets if t.split(".")[0] in ("pytest", "hypothesis")], (name, targets)
+
+
+# The service's runtime apart from the tools that drive it; the library apart from studies and benchmarks.
+DRIVERS = ("studies", "bench", "tools")  # packages that run or measure the library, never imported by it
+
+
+def _driver_imports(path: Path, name: str, drivers: tuple[str, ...]) -> list[str]:
+    """The packages among `drivers` that a module imports anywhere, a function's and a TYPE_CHECKING import included."""
+    return sorted(m for m in _imports(path, name, {}, type_checking=True) if m.split(".")[0] in drivers)
+
+
+def test_the_service_runtime_imports_none_of_its_tools():
+    """Importing the app, building it and loading `python -m service` brings in no load test, soak, browser
+    driver or Playwright, nor any package that drives the service (in a fresh interpreter: sys.modules)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, service.__main__; from service.app import create_app; create_app(); "
+            "print([m for m in sys.modules if m.split('.')[0] in ('tools', 'bench', 'studies', 'playwright', 'psutil') "
+            "or m.rpartition('.')[2] in ('loadtest', 'soak', 'browser')])")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "[]", run.stdout
+
+
+def test_the_import_reader_sees_a_driver_import():
+    """The reader finds bench's own imports of studies and tools, so the next tests can fail."""
+    assert {"studies", "tools"} <= set(_driver_imports(ROOT / "bench" / "service.py", "bench.service", DRIVERS))
+
+
+@pytest.mark.parametrize("package", LIBRARY)
+def test_no_library_module_imports_studies_bench_or_tools(package):
+    """Nothing in contracts, fem_offline, training, service or pipeline imports a study, a benchmark or a tool:
+    they run the library, the library never runs them."""
+    found = {name: _driver_imports(path, name, DRIVERS) for name, path in _modules().items()
+             if name.split(".")[0] == package}
+    assert not {name: f for name, f in found.items() if f}
+
+
+def test_the_tools_import_nothing_of_the_project():
+    """tools/ drives a running service from outside (HTTP, a browser): it imports no project package but itself."""
+    for path in sorted((ROOT / "tools").glob("*.py")):
+        assert not _driver_imports(path, _module_name(path), (*LIBRARY, "studies", "bench")), path.name
