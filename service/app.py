@@ -22,7 +22,8 @@ from .limits import PendingLimit, RateLimit
 from .metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, check_graph, onnx_session, read_model_folder
 from .pipeline import Pipeline
-from .routes import HEALTH_PATHS, outside_mesh, predict_router, router
+from .predict_routes import outside_mesh, predict_router
+from .routes import HEALTH_PATHS, router
 from .schemas import field_hints, predict_request_model
 from .settings import Settings
 from .viewer import viewer_router

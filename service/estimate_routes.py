@@ -22,7 +22,7 @@ from .http import RequestProblem
 from .info import ModelInfo
 from .materials import material_vectors
 from .model import OutsideMesh, Predictor
-from .schemas import error_responses
+from .http import error_responses
 
 MIN_THETA_STD = 1e-4  # a stiffness std of ln E below this counts as this (0 would be an infinite weight)
 

@@ -1,4 +1,5 @@
-"""HTTP plumbing: the JSON response class, the one error reply, content negotiation, the body limit and CORS."""
+"""HTTP plumbing: the JSON response class, the one error reply (its schema and the routes' documented errors),
+content negotiation, the body limit and CORS."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import orjson
 from fastapi import HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.middleware.cors import CORSMiddleware
 
@@ -20,6 +22,38 @@ ReplyFormat = Literal["json", "binary"]
 class OrjsonResponse(JSONResponse):
     def render(self, content) -> bytes:
         return orjson.dumps(content, option=orjson.OPT_SERIALIZE_NUMPY)
+
+
+class FieldError(BaseModel):
+    field: str = Field(description="the offending field, dotted (points.3.0), body, or a header (content-type)")
+    message: str = Field(description="what is wrong and what the field accepts")
+    type: str
+
+
+class ErrorReply(BaseModel):
+    detail: list[FieldError]
+
+
+# The error replies a POST route documents, each an ErrorReply, in the order their OpenAPI entries list them.
+ERROR_REPLIES = {
+    400: "the body is not UTF-8 text",
+    406: "the Accept header allows neither JSON nor application/octet-stream",
+    401: "no bearer token (when the service requires one)",
+    403: "the bearer token is not accepted",
+    413: "request body too large",
+    415: "the body is not sent as application/json",
+    422: "a field is invalid, out of the model's envelope, or outside the mesh",
+    429: "over the client's rate limit; see Retry-After",
+}
+NEGOTIATED = frozenset({406, 415})  # only a route that reads Content-Type and Accept itself (/predict) answers these
+
+
+def error_responses(*, unavailable: str, negotiates: bool = False) -> dict[int, dict]:
+    """A POST route's error replies for its OpenAPI `responses`: ERROR_REPLIES (406 and 415 where it `negotiates`),
+    then 503 with the route's own reason (`unavailable`)."""
+    statuses = [s for s in ERROR_REPLIES if negotiates or s not in NEGOTIATED]
+    return {**{s: {"model": ErrorReply, "description": ERROR_REPLIES[s]} for s in statuses},
+            503: {"model": ErrorReply, "description": unavailable}}
 
 
 def error_reply(status: int, errors: Iterable[tuple[str, str, str]], headers: dict | None = None) -> OrjsonResponse:

@@ -36,7 +36,7 @@ from contracts.tet10 import p2_weights
 from .export import surface_of
 from .guide import Guide
 from .model import OutsideMesh, Predictor
-from .schemas import ErrorReply
+from .http import ErrorReply
 
 STATIC = Path(__file__).resolve().parent / "static" / "viewer"
 MEDIA_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
