@@ -1,4 +1,4 @@
-"""Command line: `python -m fem_offline solve|sweep|cases|material-cases|mesh ...`; bad input gets one line, exit code 2."""
+"""Command line: `python -m fem_offline solve|sweep|design|cases|material-cases|mesh ...`; bad input gets one line, exit code 2."""
 
 from __future__ import annotations
 
@@ -32,6 +32,20 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("--out", required=True, type=Path, help="output folder")
     w.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one path each (default 2)")
     w.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
+
+    g = sub.add_parser("design", help="paths at space-filling points in (beta, stiffness ratios) over the scene's "
+                       "material box, for a model right over the whole box (resumable)")
+    g.add_argument("--scene", required=True, type=Path, help="a scene with [materials] (the box)")
+    g.add_argument("--out", required=True, type=Path, help="output folder (design.json, one sweep folder per point)")
+    g.add_argument("--n", type=number("--n", int, minimum=1), default=64, help="number of points (default 64)")
+    g.add_argument("--seed", type=number("--seed", int), default=0, help="seed of the scrambled Sobol sequence (default 0)")
+    g.add_argument("--mesh", type=Path, help="solve on this mesh (.npz, e.g. models/default/mesh.npz; default: mesh the scene)")
+    g.add_argument("--held-out", action="store_true", help="the box's corners first, then Sobol points, all at the "
+                   "largest angle and without sensitivities: a set to check a model against")
+    g.add_argument("--sensitivities", action=argparse.BooleanOptionalAction, default=None,
+                   help="store S_i = du/d ln E_i at every snapshot (default: yes, no with --held-out)")
+    g.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one path each (default 2)")
+    g.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
 
     c = sub.add_parser("cases", help="solve random off-grid cases inside the sweep's envelope (held-out set; resumable)")
     c.add_argument("--scene", required=True, type=Path)
@@ -114,6 +128,24 @@ def _sweep(args) -> int:
     return 1 if manifest.errors else 0
 
 
+def _design(args) -> int:
+    from fem_offline.design import run_design
+
+    if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
+        raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
+    if args.mesh is not None and not args.mesh.exists():
+        raise ValueError(f"--mesh: no such file {args.mesh}")
+    sensitivities = (not args.held_out) if args.sensitivities is None else args.sensitivities
+    summary = run_design(load_scene(args.scene), args.out, n=args.n, seed=args.seed, sensitivities=sensitivities,
+                         held_out=args.held_out, mesh=args.mesh, workers=args.workers, scheduler=args.scheduler)
+    print(f"{args.out}: {summary['finished']}/{summary['points']} points finished, {summary['snapshots']}/"
+          f"{summary['expected']} snapshots, {summary['seconds']:.0f} s this run")
+    for where, errors in summary["stopped"].items():
+        for err in errors:
+            print(f"stopped: {where}: {err}", file=sys.stderr)
+    return 1 if summary["stopped"] else 0
+
+
 def _inversion_warning(manifest) -> str:
     """The sweep's warning for snapshots with det(I + grad u) <= 0 (SweepManifest.validity)."""
     v = manifest.validity
@@ -171,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     from fem_offline.fe.newton import ConvergenceError
 
     try:
-        return {"solve": _solve, "sweep": _sweep, "cases": _cases, "material-cases": _material_cases,
+        return {"solve": _solve, "sweep": _sweep, "design": _design, "cases": _cases, "material-cases": _material_cases,
                 "mesh": _mesh}[args.command](args) or 0
     except (SceneError, ValueError, ConvergenceError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -256,30 +256,53 @@ def single_threaded_pool(workers: int) -> ProcessPoolExecutor:
             os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
 
 
-def _run_pool(scene_json: str, out: Path, paths, workers: int, scheduler: str | None, progress) -> list[str]:
-    """Run the paths on a local process pool or a Dask cluster; show progress from files written."""
+def run_jobs(jobs, *, workers: int, scheduler: str | None, progress) -> dict[str, list[str]]:
+    """Solve the pending paths of every (scene, folder, paths) job on one local process pool or a Dask cluster,
+    then reflect each mirrored folder's beta < 0 paths; progress from the files written. Returns each folder's
+    errors (paths that stopped) by str(folder)."""
+    submitted, mirrors = [], []
+    for scene, out, paths in jobs:
+        out = Path(out)
+        image, twins = _mirror_pairs(scene, read_mesh(out / folder.MESH_FILE), paths)
+        # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
+        pending = [p for i, p in enumerate(paths) if i not in twins and not all((out / c.file).exists() for c in p)]
+        submitted += [(scene.model_dump_json(), str(out), p) for p in pending]
+        if twins:
+            mirrors.append((out, paths, twins, image))
+    errors: dict[str, list[str]] = {str(Path(out)): [] for _, out, _ in jobs}
+    if submitted:
+        for out, error in _run_pool(submitted, workers, scheduler, progress, [Path(o) for _, o, _ in jobs]):
+            errors[out].append(error)
+    for out, paths, twins, image in mirrors:
+        progress.update(_write_mirrored(out, paths, twins, image))
+    return errors
+
+
+def _run_pool(submitted, workers: int, scheduler: str | None, progress, folders: list[Path]) -> list[tuple[str, str]]:
+    """Run (scene_json, folder, path) on a local process pool or a Dask cluster; (folder, error) of each stop."""
     if scheduler:
         from distributed import Client
 
         client = Client(scheduler)
-        futures = [client.submit(run_path, scene_json, str(out), p, pure=False) for p in paths]
+        futures = [client.submit(run_path, *job, pure=False) for job in submitted]
         done = lambda: all(f.done() for f in futures)  # noqa: E731
         results = lambda: client.gather(futures)  # noqa: E731
         closer = client.close
     else:
         pool = single_threaded_pool(workers)
-        futures = [pool.submit(run_path, scene_json, str(out), p) for p in paths]
+        futures = [pool.submit(run_path, *job) for job in submitted]
         done = lambda: all(f.done() for f in futures)  # noqa: E731
         results = lambda: [f.result() for f in futures]  # noqa: E731
         closer = pool.shutdown
-    start = _count(out)
+    count = lambda: sum(_count(f) for f in folders)  # noqa: E731
+    start = count()
     try:
         while not done():
             time.sleep(0.5)
-            progress.update(_count(out) - start - progress.n + progress.initial)
-        return [r["error"] for r in results() if "error" in r]
+            progress.update(count() - start - progress.n + progress.initial)
+        return [(job[1], r["error"]) for job, r in zip(submitted, results()) if "error" in r]
     finally:
-        progress.update(_count(out) - start - progress.n + progress.initial)
+        progress.update(count() - start - progress.n + progress.initial)
         closer()
 
 
@@ -301,12 +324,7 @@ def run_sweep(scene: Scene, out: str | Path, *, workers: int = 2, scheduler: str
         if superposable and n_pending:
             _write_linear(scene, mesh, out, [c for p in pending for c in p], progress)
         elif n_pending:  # one path per angle: nonlinear, or linear with the guide in contact
-            image, twins = _mirror_pairs(scene, mesh, paths)
-            # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
-            todo = [full for i, (full, p) in enumerate(zip(paths, pending)) if p and i not in twins]
-            errors = _run_pool(scene.model_dump_json(), out, todo, workers, scheduler, progress) if todo else []
-            if twins:
-                progress.update(_write_mirrored(out, paths, twins, image))
+            errors = run_jobs([(scene, out, paths)], workers=workers, scheduler=scheduler, progress=progress)[str(out)]
     return write_manifest(scene, mesh, out, paths, seconds=time.perf_counter() - t0, errors=errors)
 
 
