@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.estimate import StateSpace, point_set, positions
-from service.estimate_routes import Closing, run_estimate, run_plan
-from service.estimate_schemas import estimate_request_model, plan_request_model
+from service.estimate.fit import StateSpace, point_set, positions
+from service.estimate.routes import Closing, run_estimate, run_plan
+from service.estimate.schemas import estimate_request_model, plan_request_model
 from service.info import model_info
 from service.model import Predictor, read_model_folder
 from service.settings import DEFAULT_MODEL, Settings

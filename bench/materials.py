@@ -51,9 +51,9 @@ def timings(model: Path, repeat: int) -> dict[str, tuple[float, float]]:
     """p50 and p99 (ms) of predict() + the JSON reply for markers, markers + 100 points and the full mesh."""
     from service.info import model_info
     from service.model import Predictor, read_model_folder
-    from service.predict import predict
-    from service.replies import reply
-    from service.schemas import predict_request_model
+    from service.predict.decode import predict
+    from service.predict.replies import reply
+    from service.predict.schemas import predict_request_model
     from service.settings import Settings
 
     folder = read_model_folder(model)

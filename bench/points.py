@@ -24,8 +24,8 @@ import orjson
 
 from service.info import model_info
 from service.model import OutsideMesh, Predictor, read_model_folder
-from service.predict import predict
-from service.schemas import predict_request_model
+from service.predict.decode import predict
+from service.predict.schemas import predict_request_model
 from service.settings import DEFAULT_MODEL, Settings
 
 from bench._report import Report

@@ -169,8 +169,8 @@ def in_process(model: Path, cores: set[int]) -> dict:
     lanes as threads of this process), one lane on every core and a lane per core of one thread each, so it does
     not depend on the defaults; and the work outside onnxruntime."""
     from service.model import Predictor, read_model_folder
-    from service.predict import ALL_NODES, Query, finish
-    from service.replies import binary_reply, json_chunks
+    from service.predict.decode import ALL_NODES, Query, finish
+    from service.predict.replies import binary_reply, json_chunks
 
     mine = os.sched_getaffinity(0)
     os.sched_setaffinity(0, cores)

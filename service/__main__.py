@@ -17,11 +17,11 @@ import tempfile
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["export"]:  # a subcommand; every other argument list serves, as before
-        from .export_cli import main as export_main
+        from .cli.export import main as export_main
 
         return export_main(argv[1:])
-    if argv[:1] in (["estimate"], ["plan"]):  # POST /estimate and /plan, offline (service/estimate_cli.py)
-        from .estimate_cli import main as estimate_main
+    if argv[:1] in (["estimate"], ["plan"]):  # POST /estimate and /plan, offline (service/cli/estimate.py)
+        from .cli.estimate import main as estimate_main
 
         return estimate_main(argv[0], argv[1:])
     from pydantic import ValidationError
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import uvicorn
 
-    from .metrics import MULTIPROCESS_DIR
+    from .middleware.metrics import MULTIPROCESS_DIR
 
     metrics_dir = None
     if settings.workers > 1:

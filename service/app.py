@@ -11,20 +11,20 @@ from fastapi.exceptions import RequestValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import http
-from .access_log import JsonAccessLog, json_lines_logger
-from .auth import BearerAuth
 from .docs import DOCS_PATHS, STATIC, add_offline_docs
-from .estimate_routes import Closing, estimate_router
-from .estimate_schemas import estimate_field_hints
+from .estimate.routes import Closing, estimate_router
+from .estimate.schemas import estimate_field_hints
 from .igtl import igtl_server
 from .info import model_info
-from .limits import PendingLimit, RateLimit
-from .metrics import Metrics, PredictMetrics
+from .middleware.access_log import JsonAccessLog, json_lines_logger
+from .middleware.auth import BearerAuth
+from .middleware.limits import PendingLimit, RateLimit
+from .middleware.metrics import Metrics, PredictMetrics
 from .model import ModelError, OutsideMesh, Predictor, check_graph, onnx_session, read_model_folder
-from .pipeline import Pipeline
-from .predict_routes import outside_mesh, predict_router
+from .predict.pipeline import Pipeline
+from .predict.routes import outside_mesh, predict_router
+from .predict.schemas import field_hints, predict_request_model
 from .routes import HEALTH_PATHS, router
-from .schemas import field_hints, predict_request_model
 from .settings import Settings
 from .viewer import viewer_router
 

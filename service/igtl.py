@@ -43,11 +43,11 @@ from contracts.materials import HALO_SIGMAS
 from contracts.model import ModelFolder
 from contracts.tet10 import p2_weights
 
-from .export import surface_of
 from .guide import Guide, OffAxisPose
 from .http import RequestProblem
 from .materials import NO_MATERIALS, material_vectors, materials_request_model
 from .model import PointLocator, Predictor
+from .predict.export import surface_of
 
 log = logging.getLogger(__name__)
 POSE_NAME, POINTS_NAME, SURFACE_NAME, STATUS_NAME = "NeedleGuide", "DeformedPoints", "ProstateSurface", "NeedleGuideStatus"

@@ -7,7 +7,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.responses import PlainTextResponse, Response
 
 from .info import ModelInfo
-from .metrics import Metrics
+from .middleware.metrics import Metrics
 from .model import Predictor
 
 

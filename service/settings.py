@@ -37,7 +37,7 @@ class Settings(BaseSettings):
     access_log: Literal["text", "json", "off"] = Field(
         "text", description="one line per request: uvicorn's text, JSON lines on stdout, or none")
 
-    # Dynamic batching (service/batching.py): requests that arrive together decode in one onnxruntime call.
+    # Dynamic batching (service/predict/batching.py): requests that arrive together decode in one onnxruntime call.
     batching: bool = Field(True, description="decode concurrent requests with the same node set together")
     # 16: at 312k nodes a decode reads the whole basis once per call, so a batch of 16 costs far less than two of
     # 8 (python -m bench service's decode table; CHANGELOG); at 10k nodes batches rarely pass 8

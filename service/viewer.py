@@ -33,10 +33,10 @@ from contracts.materials import HALO_SIGMAS
 from contracts.model import ModelFolder
 from contracts.tet10 import p2_weights
 
-from .export import surface_of
 from .guide import Guide
-from .model import OutsideMesh, Predictor
 from .http import ErrorReply
+from .model import OutsideMesh, Predictor
+from .predict.export import surface_of
 
 STATIC = Path(__file__).resolve().parent / "static" / "viewer"
 MEDIA_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",

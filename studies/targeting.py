@@ -7,14 +7,14 @@ At n random points inside the model's envelope (d, beta uniform; each tissue's l
 clipped to its range) the model's own scene (the manifest's) is solved afresh on the model's mesh: Newton at the
 point from the served model's field, else the path from the model's field at 0.9 d, else load-stepped from rest
 (each file says which; on the default model the second and the third agreed to 0.006 mm at a point tried both ways). At each point the markers are observed with Gaussian noise (draws per point) and POST /estimate's fit
-(service/estimate.py) predicts the lesions: points inside the prostate that are not nodes (centroids of random
+(service/estimate/fit.py) predicts the lesions: points inside the prostate that are not nodes (centroids of random
 prostate tets, fixed by the seed). Configurations: 0.2 mm noise with all markers and with every other one, 0.5 mm
 with all, and 0.2 mm with all plus an encoder prior on (d, beta) (0.5 mm, 1 deg, centred on a draw around the
 truth). Reported per configuration: the displaced-lesion error (median, 95th percentile), how often the reported
 95 % region holds the FE lesion, how often the fit is flagged, and the baselines: the forward model at the true
 (d, beta) and nominal stiffness, and "no deformation" (the lesion where it was planned).
 
-Planning (the first --plan-points solved points): POST /plan's aim (service/aim.py) at the point's d and the
+Planning (the first --plan-points solved points): POST /plan's aim (service/estimate/aim.py) at the point's d and the
 stiffness estimated from all markers at 0.2 mm, at a lesion within reach (a prostate point on the guide's tilt
 plane: the random lesions mostly lie off it, out of every pose's reach), then a fresh FE solve at the planned pose
 and at naive aiming's pose: the needle ray's distance from the FE-displaced lesion at each.
@@ -131,7 +131,7 @@ def solved(path: Path, folder, predictor, state: np.ndarray, *, solve_missing: b
 
 
 def _estimate(predictor, space, pts, n_obs, observed, noise_mm, prior):
-    from service.estimate import Problem, estimate, model_sigma_mm
+    from service.estimate.fit import Problem, estimate, model_sigma_mm
 
     n = len(space.names)
     mean, std = np.zeros(n), np.full(n, np.inf)
@@ -152,7 +152,7 @@ def _covered(err: np.ndarray, cov: np.ndarray) -> bool:
 def evaluate(folder, predictor, fresh: dict[int, np.ndarray], states: np.ndarray, lesions: np.ndarray, *,
              draws: int, seed: int) -> dict:
     """Every configuration's lesion errors, coverage and flags over the solved points; the baselines."""
-    from service.estimate import StateSpace, point_set, positions
+    from service.estimate.fit import StateSpace, point_set, positions
 
     space, markers = StateSpace.of(predictor), folder.regions["markers"]
     rng = np.random.default_rng(seed + 2)
@@ -225,8 +225,8 @@ def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.nd
                solve_missing: bool, seed: int) -> dict | None:
     """Aim at a lesion within reach (plan_lesion) with the point's d and the stiffness estimated from its markers;
     the FE at the planned and the naive pose."""
-    from service import aim
-    from service.estimate import StateSpace, point_set, positions
+    from service.estimate import aim
+    from service.estimate.fit import StateSpace, point_set, positions
     from service.guide import Guide
 
     space, guide, markers = StateSpace.of(predictor), Guide.of(folder.manifest), folder.regions["markers"]

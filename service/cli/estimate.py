@@ -41,11 +41,11 @@ def _body(command: str, args) -> dict:
 
 def run(command: str, argv: list[str]) -> dict:
     """The route's reply to the body the flags give; ValidationError or RequestProblem as the route would refuse."""
-    from .estimate_routes import Closing, run_estimate, run_plan
-    from .estimate_schemas import estimate_request_model, plan_request_model
-    from .info import model_info
-    from .model import Predictor, read_model_folder
-    from .settings import Settings
+    from ..estimate.routes import Closing, run_estimate, run_plan
+    from ..estimate.schemas import estimate_request_model, plan_request_model
+    from ..info import model_info
+    from ..model import Predictor, read_model_folder
+    from ..settings import Settings
 
     args = _parser(command).parse_args(argv)
     body = _body(command, args)
@@ -60,7 +60,7 @@ def run(command: str, argv: list[str]) -> dict:
 
 
 def main(command: str, argv: list[str] | None = None) -> int:
-    from .http import RequestProblem
+    from ..http import RequestProblem
 
     try:
         print(json.dumps(run(command, sys.argv[2:] if argv is None else argv), indent=1))

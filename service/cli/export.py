@@ -1,7 +1,7 @@
 """`python -m service export --model M --displacement-mm D --angle-deg B --out case.vtu`: a deformed mesh file, offline.
 
 The format follows the suffix of --out: .vtu (the volume), .ply or .glb (tissue surfaces); see
-service/export.py. Bad flags, an out-of-envelope case or a bad model folder: one line, exit 2.
+service/predict/export.py. Bad flags, an out-of-envelope case or a bad model folder: one line, exit 2.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import math
 import sys
 from pathlib import Path
 
-from .export import ExportFormat, export_bytes
+from ..predict.export import ExportFormat, export_bytes
 
 
 class _Parser(argparse.ArgumentParser):
@@ -29,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _export(args) -> str:
-    from .model import Predictor, read_model_folder
+    from ..model import Predictor, read_model_folder
 
     suffix = args.out.suffix.lower().lstrip(".")
     if suffix not in ExportFormat.__members__:

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .estimate import PointSet, StateSpace, positions, with_jacobian
-from .guide import Guide
-from .model import Predictor
+from ..guide import Guide
+from ..model import Predictor
+from .fit import PointSet, StateSpace, positions, with_jacobian
 
 REACH_MM = 2.5  # the clinical target: a biopsy needle within 2.5 mm of the lesion (Karnik et al., via the paper)
 GRID = (21, 41)  # the first (d, beta) grid: 0.5 mm and 0.5 deg on the default envelope

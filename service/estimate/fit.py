@@ -28,7 +28,7 @@ from scipy import stats
 
 from contracts.tet10 import p2_weights
 
-from .model import Predictor
+from ..model import Predictor
 
 ALPHA = 1e-3  # the false-alarm rate of the contradiction flag, per fit
 DIFF_STEP = (0.01, 0.01, 0.1)  # central-difference steps: mm, deg, ln E (exact for theta: the graph is linear in it)

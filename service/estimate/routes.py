@@ -1,6 +1,6 @@
 """POST /estimate (the state from tracked points), POST /plan (where to put the guide) and the estimate stream.
 
-Thin handlers: a validated body becomes a `Problem` (service/estimate.py) or a lesion (service/aim.py), the
+Thin handlers: a validated body becomes a `Problem` (fit.py) or a lesion (aim.py), the
 numerics run off the event loop, the answer becomes a typed reply. `Closing` holds what both need of the model.
 """
 
@@ -14,15 +14,14 @@ from fastapi import APIRouter, Depends, HTTPException, Request, WebSocket, WebSo
 from pydantic import BaseModel, ValidationError
 from starlette.concurrency import run_in_threadpool
 
+from ..guide import Guide
+from ..http import RequestProblem, error_responses
+from ..info import ModelInfo
+from ..materials import material_vectors
+from ..model import OutsideMesh, Predictor
 from . import aim
-from .estimate import Estimate, Problem, StateSpace, estimate, model_sigma_mm, point_set
-from .estimate_schemas import EstimateReply, PlanReply, estimate_request_model, plan_request_model
-from .guide import Guide
-from .http import RequestProblem
-from .info import ModelInfo
-from .materials import material_vectors
-from .model import OutsideMesh, Predictor
-from .http import error_responses
+from .fit import Estimate, Problem, StateSpace, estimate, model_sigma_mm, point_set
+from .schemas import EstimateReply, PlanReply, estimate_request_model, plan_request_model
 
 MIN_THETA_STD = 1e-4  # a stiffness std of ln E below this counts as this (0 would be an infinite weight)
 

@@ -7,8 +7,8 @@ from typing import Annotated, Optional
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 from pydantic_core import PydanticCustomError
 
-from .info import ModelInfo
-from .materials import materials_request_model
+from ..info import ModelInfo
+from ..materials import materials_request_model
 
 POSITION_LIMIT_MM = 1e4  # an observed (deformed) coordinate is a finite number inside +-this
 STD_RANGE_MM = (1e-3, 100.0)  # a tracked point's noise std

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 
-from .http import error_reply
+from ..http import error_reply
 
 CLIENT = "client_id"  # the scope["state"] key naming an authenticated client, for the rate limit
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import math
 import time
 
+from ..http import error_reply
 from .auth import CLIENT
-from .http import error_reply
 
 IN_FLIGHT = "predict_in_flight"  # request.state key: /predict requests in the service when this one arrived
 MAX_CLIENTS = 10_000  # buckets kept; beyond this, the full (idle) ones are dropped

@@ -1,4 +1,4 @@
-"""Predictions as arrays, alone or batched: no HTTP here (service/pipeline.py turns them into replies).
+"""Predictions as arrays, alone or batched: no HTTP here (pipeline.py turns them into replies).
 
 A request becomes a `Query` (`plan`: which nodes to decode, and how to turn their displacement into the
 answer); `predict_batch` decodes queries, alone or many, and full-mesh queries decode together in one
@@ -18,8 +18,8 @@ import numpy as np
 from contracts.interpolate import interpolate
 from contracts.tet10 import p2_weights
 
-from .materials import error_budget, material_vectors
-from .model import Predictor
+from ..materials import error_budget, material_vectors
+from ..model import Predictor
 from .schemas import PredictRequestBase
 
 ALL_NODES = "all"  # the batching key of a full-mesh query

@@ -26,7 +26,7 @@ from fastapi.responses import Response
 
 from contracts.model import ModelFolder
 
-from .http import error_reply
+from ..http import error_reply
 
 # RGBA per tissue for the surface formats; a tissue not listed is grey.
 TISSUE_COLOURS = {"prostate": (214, 96, 77, 255), "rectal_wall": (166, 97, 26, 255), "bladder": (80, 140, 200, 255),

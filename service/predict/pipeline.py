@@ -23,13 +23,13 @@ import numpy as np
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import Response
 
+from ..http import RequestProblem
+from ..model import Predictor
+from ..settings import Settings
 from .batching import Batcher, QueueFull
-from .http import RequestProblem
-from .model import Predictor
-from .predict import ALL_NODES, Query, plan, predict_batch
+from .decode import ALL_NODES, Query, plan, predict_batch
 from .replies import reply, small_reply
 from .schemas import PredictRequestBase
-from .settings import Settings
 
 
 @dataclass(frozen=True)

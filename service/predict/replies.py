@@ -19,8 +19,8 @@ import numpy as np
 import orjson
 from starlette.responses import Response
 
-from .http import BINARY, JSON
-from .predict import Prediction
+from ..http import BINARY, JSON
+from .decode import Prediction
 from .schemas import PredictRequestBase
 
 CHUNK_ROWS = 8192  # rows of a (k, 3) float32 array per orjson call: short enough that the loop gets the GIL often

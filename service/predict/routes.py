@@ -1,5 +1,5 @@
 """POST /predict: the request parsed here (its body, Accept and ?format=), then planned, decoded and answered by
-service/pipeline.py, or exported as a mesh file (service/export.py)."""
+pipeline.py, or exported as a mesh file (export.py)."""
 
 # No `from __future__ import annotations`: FastAPI must see the request model built in predict_router.
 from typing import Annotated
@@ -9,11 +9,11 @@ from fastapi.routing import APIRoute
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
+from ..http import BINARY, JsonRequest, RequestProblem, error_reply, error_responses, reply_format, require_json
+from ..middleware.limits import IN_FLIGHT
+from ..middleware.metrics import FORMAT, TARGET
+from ..model import OutsideMesh
 from .export import EXPORT_CONTENT, ExportFormat, export_response
-from .http import BINARY, JsonRequest, RequestProblem, error_reply, error_responses, reply_format, require_json
-from .limits import IN_FLIGHT
-from .metrics import FORMAT, TARGET
-from .model import OutsideMesh
 from .pipeline import Pipeline
 from .schemas import PredictReply, PredictRequestBase
 

@@ -7,8 +7,8 @@ from typing import Annotated, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
-from .info import ModelInfo
-from .materials import NO_MATERIALS, materials_request_model
+from ..info import ModelInfo
+from ..materials import NO_MATERIALS, materials_request_model
 
 
 def _coordinate(lo: float, hi: float, axis: str):

@@ -57,7 +57,7 @@ def predictor(settings):
 def request_model(settings, predictor):
     """The PredictRequest model the app builds from the default model's manifest."""
     from service.info import model_info
-    from service.schemas import predict_request_model
+    from service.predict.schemas import predict_request_model
 
     return predict_request_model(model_info(predictor.folder, settings), settings.max_points)
 

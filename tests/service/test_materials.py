@@ -343,7 +343,7 @@ def test_openigtlink_takes_the_materials_and_sends_the_2_sigma_sphere_of_predict
 
 
 def test_an_export_with_materials_is_refused_rather_than_answered_at_the_nominal(mat_client):
-    """?format= exports the nominal materials' mesh (service/export.py): materials with it are a 422, not ignored."""
+    """?format= exports the nominal materials' mesh (service/predict/export.py): materials with it are a 422, not ignored."""
     reply = mat_client.post("/predict?format=vtu", json={**GUIDE, "materials": {"prostate": {"youngs_kpa": 70.0}}})
     assert reply.status_code == 422 and reply.json()["detail"][0]["field"] == "materials"
     assert mat_client.post("/predict?format=vtu", json=GUIDE).status_code == 200

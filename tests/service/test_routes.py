@@ -141,7 +141,7 @@ def test_healthz_is_answered_while_a_predict_is_in_flight(settings, monkeypatch,
 
     import httpx
 
-    from service import pipeline
+    from service.predict import pipeline
     from service.app import create_app
 
     entered, release = threading.Event(), threading.Event()
@@ -203,7 +203,7 @@ def _route_class(app, path: str) -> type:
     ({"materials": {"prostate": {"youngs_kpa": 70.0, "std_percent": 10.0}}}, "application/json"),
     ({"materials": {"adipose": {"shear_wave_speed_m_s": 2.0}}, "region": "markers"}, "application/octet-stream")])
 def test_a_valid_body_skips_fastapi_dependencies_and_gets_the_same_reply(client, folder, monkeypatch, body, accept):
-    """/predict's direct path (service/routes.py, PredictRoute) gives the same status, headers and bytes as FastAPI's
+    """/predict's direct path (service/predict/routes.py, PredictRoute) gives the same status, headers and bytes as FastAPI's
     path, and solves no dependency on the way; an invalid body takes FastAPI's path, for its 422."""
     import fastapi.routing
 

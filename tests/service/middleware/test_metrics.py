@@ -5,7 +5,7 @@ import re
 import pytest
 from fastapi.testclient import TestClient
 
-from service.metrics import Metrics, PredictMetrics
+from service.middleware.metrics import Metrics, PredictMetrics
 
 
 def _count(text: str, status: str) -> float:

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from .helpers import predict_json
+from ..helpers import predict_json
 
 CASE = {"displacement_mm": 4.5, "angle_deg": -4.0}  # inside the tiny model's envelope (0..5 mm, tests/conftest.py)
 

@@ -5,7 +5,7 @@ import logging
 
 from fastapi.testclient import TestClient
 
-from service.access_log import JsonAccessLog
+from service.middleware.access_log import JsonAccessLog
 from service.app import create_app
 
 

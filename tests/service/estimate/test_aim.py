@@ -4,10 +4,10 @@ states, no pose does better, an unreachable lesion says so with its closest appr
 import numpy as np
 import pytest
 
-from service.aim import REACH_MM, ray_miss
+from service.estimate.aim import REACH_MM, ray_miss
 from service.guide import Guide
 
-from .helpers import predict_json, prostate_point
+from ..helpers import predict_json, prostate_point
 
 
 def _plan(client, **body) -> dict:
@@ -80,7 +80,7 @@ def test_a_bad_plan_request_is_a_422_naming_the_field(tiny_client, body, field, 
 
 
 def test_a_material_model_states_the_misss_std_from_the_stiffnesses(tiny_material_model):
-    from .helpers import served
+    from ..helpers import served
 
     with served(tiny_material_model) as client:
         from service.model import read_model_folder

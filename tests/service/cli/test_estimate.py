@@ -4,7 +4,7 @@ import json
 
 from service.__main__ import main
 
-from .helpers import predict_json, prostate_point
+from ..helpers import predict_json, prostate_point
 
 
 def test_plan_offline_is_the_routes_reply(tiny_client, tiny_model, tiny_folder, capsys):

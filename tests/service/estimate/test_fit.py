@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from service.estimate import Problem, StateSpace, estimate, point_set, positions
+from service.estimate.fit import Problem, StateSpace, estimate, point_set, positions
 
-from .helpers import predict_json, prostate_point, served
+from ..helpers import predict_json, prostate_point, served
 
 TRUTH = {"displacement_mm": 4.2, "angle_deg": -3.5}
 
@@ -173,7 +173,7 @@ def test_the_stream_answers_each_frame_and_survives_a_bad_one(tiny_client):
 def test_a_targets_covariance_adds_the_models_own_error_there(tiny_predictor, tiny_folder):
     """model_sigma_mm: half the manifest's bound against the model's own FE, the markers' for a prostate point and
     every node's elsewhere; the fit adds its square to each target's covariance, nothing else changes."""
-    from service.estimate import model_sigma_mm
+    from service.estimate.fit import model_sigma_mm
 
     acc = tiny_folder.manifest.accuracy.regions
     adipose = tiny_folder.manifest.mesh.tissues.index("adipose")

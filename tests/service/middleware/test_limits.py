@@ -9,7 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.limits import RateLimit
+from service.middleware.limits import RateLimit
 
 BODY = {"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers"}
 
@@ -41,7 +41,7 @@ def test_over_the_rate_gets_429_with_retry_after_per_client(settings):
 
 
 def test_a_full_service_answers_503_with_retry_after(settings, monkeypatch):
-    from service import pipeline
+    from service.predict import pipeline
 
     entered, release = threading.Event(), threading.Event()
     real = pipeline.predict_batch

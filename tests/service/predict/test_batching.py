@@ -8,8 +8,8 @@ import httpx
 import numpy as np
 import pytest
 
-from service.batching import Batcher, QueueFull
-from service.predict import plan, predict, predict_batch
+from service.predict.batching import Batcher, QueueFull
+from service.predict.decode import plan, predict, predict_batch
 
 
 def test_a_batch_of_different_requests_gives_each_its_own_answer(predictor, request_model):

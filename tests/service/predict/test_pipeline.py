@@ -1,7 +1,7 @@
 """Where /predict decodes: the node sets cheap enough for the event loop, measured at start."""
 
-from service.pipeline import cheap_keys
-from service.predict import ALL_NODES
+from service.predict.pipeline import cheap_keys
+from service.predict.decode import ALL_NODES
 
 
 def test_cheap_keys_are_the_node_sets_decoded_within_the_budget(predictor):

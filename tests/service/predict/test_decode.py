@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from service.model import OutsideMesh
-from service.predict import predict
+from service.predict.decode import predict
 
 
 def test_region_gives_its_nodes_rows_of_the_full_decode(predictor, request_model):

@@ -7,7 +7,7 @@ import httpx
 import numpy as np
 import orjson
 
-from service.replies import ChunkedResponse, array_chunks, json_chunks
+from service.predict.replies import ChunkedResponse, array_chunks, json_chunks
 
 
 def test_json_in_pieces_is_the_same_text_as_in_one_call():
@@ -67,7 +67,7 @@ def test_at_most_two_large_arrays_are_serialised_at_once(monkeypatch):
     import threading
     import time
 
-    from service import replies
+    from service.predict import replies
 
     lock, active, peak, real = threading.Lock(), [0], [0], replies.orjson.dumps
 
