@@ -44,6 +44,8 @@ def _parser() -> argparse.ArgumentParser:
                    "largest angle and without sensitivities: a set to check a model against")
     g.add_argument("--sensitivities", action=argparse.BooleanOptionalAction, default=None,
                    help="store S_i = du/d ln E_i at every snapshot (default: yes, no with --held-out)")
+    g.add_argument("--sensitivity-every", type=number("--sensitivity-every", int, minimum=1), default=4,
+                   help="S_i at every this-many-th displacement of a path (default 4: every mm at 0.25 mm steps)")
     g.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one path each (default 2)")
     g.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
 
@@ -137,7 +139,8 @@ def _design(args) -> int:
         raise ValueError(f"--mesh: no such file {args.mesh}")
     sensitivities = (not args.held_out) if args.sensitivities is None else args.sensitivities
     summary = run_design(load_scene(args.scene), args.out, n=args.n, seed=args.seed, sensitivities=sensitivities,
-                         held_out=args.held_out, mesh=args.mesh, workers=args.workers, scheduler=args.scheduler)
+                         sensitivity_every=args.sensitivity_every, held_out=args.held_out, mesh=args.mesh,
+                         workers=args.workers, scheduler=args.scheduler)
     print(f"{args.out}: {summary['finished']}/{summary['points']} points finished, {summary['snapshots']}/"
           f"{summary['expected']} snapshots, {summary['seconds']:.0f} s this run")
     for where, errors in summary["stopped"].items():

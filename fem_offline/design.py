@@ -10,7 +10,8 @@ each theta_k moved to the box's point with its ratios nearest the nominal (contr
 point the service feeds the graph), and solves one path from rest to the largest push at each. The scene is
 mirror-symmetric, so the path at -beta_k is the reflection of the one at beta_k (sweep._write_mirrored): each
 point gives two paths. With `sensitivities`, every snapshot also holds S_i = du/d ln E_i at its own theta_k (the
-gradient a Sobolev fit uses); without, the design is a held-out set (`--held-out`: the box's corners first).
+gradient a Sobolev fit uses) at every `sensitivity_every`-th displacement (they cost about as much as the
+solve each; the gradients vary slowly with the push); without, the design is a held-out set (`--held-out`: the box's corners first).
 
 Layout: `design.json` (the points and what drew them), and one sweep folder per point (`p000/`, contracts.sweep:
 manifest, mesh.npz, snapshots), each the scene with E_i x exp(theta_ik) and the angles (-beta_k, beta_k). Every
@@ -58,6 +59,7 @@ class Design(BaseModel):
     kind: str  # "sobol": a scrambled Sobol sequence; "held_out": the box's corners, then Sobol points of another seed
     seed: int
     sensitivities: bool
+    sensitivity_every: int  # S_i at every this-many-th displacement of a path (1: all)
     angle_max_deg: float
     tissues: list[str]
     log_box: dict[str, tuple[float, float]]  # tissue -> (lo, hi) of theta
@@ -111,14 +113,15 @@ def design_scene(scene: Scene, point: DesignPoint, *, sensitivities: bool) -> Sc
     return at.model_copy(update={"sweep": sweep, "materials": scene.materials if sensitivities else None})
 
 
-def make_design(scene: Scene, *, n: int, seed: int, sensitivities: bool, held_out: bool) -> Design:
+def make_design(scene: Scene, *, n: int, seed: int, sensitivities: bool, held_out: bool,
+                sensitivity_every: int = 4) -> Design:
     box = log_box(scene)
     beta_max = float(max(abs(scene.sweep.angle_min_deg), abs(scene.sweep.angle_max_deg)))
     rows = held_out_points(n, box, beta_max, seed) if held_out else sobol_points(n, box, beta_max, seed)
     points = [DesignPoint(folder=f"p{k:03d}", angle_deg=round(float(r[0]), 6),
                           theta={t: round(float(v), 9) for t, v in zip(box, r[1:])}) for k, r in enumerate(rows)]
     return Design(scene_name=scene.name, scene_sha256=scene.sha256(), kind="held_out" if held_out else "sobol",
-                  seed=seed, sensitivities=sensitivities, angle_max_deg=beta_max, tissues=list(box), log_box=box,
+                  seed=seed, sensitivities=sensitivities, sensitivity_every=sensitivity_every, angle_max_deg=beta_max, tissues=list(box), log_box=box,
                   points=points)
 
 
@@ -149,14 +152,15 @@ def _shared_mesh(scene: Scene, out: Path, mesh: Path | None) -> TetMesh:
 
 
 def run_design(scene: Scene, out: str | Path, *, n: int = 64, seed: int = 0, sensitivities: bool = True,
-               held_out: bool = False, mesh: Path | None = None, workers: int = 2,
+               sensitivity_every: int = 4, held_out: bool = False, mesh: Path | None = None, workers: int = 2,
                scheduler: str | None = None) -> dict:
     """Solve every point of the design not finished in `out`; return a summary (points done, paths stopped,
     seconds, snapshots)."""
     from tqdm import tqdm
 
     out = Path(out)
-    design = open_design(scene, out, make_design(scene, n=n, seed=seed, sensitivities=sensitivities, held_out=held_out))
+    design = open_design(scene, out, make_design(scene, n=n, seed=seed, sensitivities=sensitivities,
+                                                     held_out=held_out, sensitivity_every=sensitivity_every))
     _shared_mesh(scene, out, mesh)
     jobs, folders = [], []
     for point in design.points:
@@ -174,7 +178,8 @@ def run_design(scene: Scene, out: str | Path, *, n: int = 64, seed: int = 0, sen
     done = sum((sub / c.file).exists() for _, sub, paths in jobs for p in paths for c in p)
     t0 = time.perf_counter()
     with tqdm(total=total, initial=done, unit="snap", desc=f"design {out.name}") as progress:
-        errors = run_jobs(jobs, workers=workers, scheduler=scheduler, progress=progress)
+        errors = run_jobs(jobs, workers=workers, scheduler=scheduler, progress=progress,
+                          sensitivity_every=design.sensitivity_every)
     seconds = time.perf_counter() - t0
     for at, point_mesh, sub, paths in folders:
         write_manifest(at, point_mesh, sub, paths, seconds=seconds, errors=errors.get(str(sub), []))

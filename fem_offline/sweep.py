@@ -148,8 +148,9 @@ def _resume_state(out: Path, path: list[Case]) -> tuple[PathState | None, list[C
     return state, path[done:]
 
 
-def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
-    """Solve the pending cases of one angle, writing each snapshot as soon as it converges."""
+def run_path(scene_json: str, out: str, path: list[Case], sensitivity_every: int = 1) -> dict:
+    """Solve the pending cases of one angle, writing each snapshot as soon as it converges; with [materials], S_i
+    at every `sensitivity_every`-th displacement counted from the first (a design's gradients need fewer)."""
     out = Path(out)
     problem = _problem(scene_json, str(out / folder.MESH_FILE))
     check = _check(scene_json, str(out / folder.MESH_FILE))
@@ -161,7 +162,8 @@ def run_path(scene_json: str, out: str, path: list[Case]) -> dict:
     try:
         steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state, with_state=True)
         for case, (_, u, stats, reached) in zip(todo, steps):
-            write_snapshot(out, case, u, stats, between=check(u), sensitivity=path_sensitivities(models, problem, case, reached))
+            with_s = models if (case.displacement_index + 1) % sensitivity_every == 0 else None
+            write_snapshot(out, case, u, stats, between=check(u), sensitivity=path_sensitivities(with_s, problem, case, reached))
             written += 1
             if os.getppid() != parent:  # the sweep was killed: stop after this (saved) snapshot
                 return {"written": written, "error": "sweep process ended"}
@@ -256,7 +258,7 @@ def single_threaded_pool(workers: int) -> ProcessPoolExecutor:
             os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
 
 
-def run_jobs(jobs, *, workers: int, scheduler: str | None, progress) -> dict[str, list[str]]:
+def run_jobs(jobs, *, workers: int, scheduler: str | None, progress, sensitivity_every: int = 1) -> dict[str, list[str]]:
     """Solve the pending paths of every (scene, folder, paths) job on one local process pool or a Dask cluster,
     then reflect each mirrored folder's beta < 0 paths; progress from the files written. Returns each folder's
     errors (paths that stopped) by str(folder)."""
@@ -266,7 +268,7 @@ def run_jobs(jobs, *, workers: int, scheduler: str | None, progress) -> dict[str
         image, twins = _mirror_pairs(scene, read_mesh(out / folder.MESH_FILE), paths)
         # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
         pending = [p for i, p in enumerate(paths) if i not in twins and not all((out / c.file).exists() for c in p)]
-        submitted += [(scene.model_dump_json(), str(out), p) for p in pending]
+        submitted += [(scene.model_dump_json(), str(out), p, sensitivity_every) for p in pending]
         if twins:
             mirrors.append((out, paths, twins, image))
     errors: dict[str, list[str]] = {str(Path(out)): [] for _, out, _ in jobs}
