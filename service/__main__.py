@@ -26,11 +26,12 @@ def main(argv: list[str] | None = None) -> int:
         return estimate_main(argv[0], argv[1:])
     from pydantic import ValidationError
 
-    from .igtl import IgtlError
+    from .igtl import IgtlError, devices_help
     from .model import ModelError
     from .settings import Settings
 
-    ap = argparse.ArgumentParser(prog="python -m service", description=__doc__)
+    ap = argparse.ArgumentParser(prog="python -m service", description=__doc__, epilog=devices_help(),
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     for name, field in Settings.model_fields.items():
         shown = ("from the usable cores" if field.default_factory is not None else
                  "none" if field.repr is False or field.default in (None, []) else field.default)

@@ -42,7 +42,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     session = onnx_session(folder.path / "model.onnx", threads=settings.threads)
     check_graph(folder, session)
     info = model_info(folder, settings)
-    igtl = igtl_server(settings, folder)  # None unless settings.igtl; IgtlError for a target outside the mesh
+    igtl = igtl_server(settings, folder, info)  # None unless settings.igtl; IgtlError for a target outside the mesh
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):

@@ -65,11 +65,14 @@ class Settings(BaseSettings):
     cors_origins: CommaList = Field([], description="origins allowed to call the API from a browser, comma-separated")
     ssl_certfile: Path | None = Field(None, description="TLS certificate (PEM); with ssl_keyfile, serve HTTPS")
     ssl_keyfile: Path | None = Field(None, description="TLS private key (PEM)")
-    # OpenIGTLink (service/igtl.py), off by default; it binds to `host` like the HTTP server
-    igtl: Annotated[bool, Field(description="serve OpenIGTLink: NeedleGuide poses in, deformed points out")] = False
+    # OpenIGTLink (service/igtl/), off by default; it binds to `host` like the HTTP server
+    igtl: Annotated[bool, Field(description=(
+        "serve OpenIGTLink: guide poses in, deformed points out; tracked points and lesions in, the estimate and "
+        "the plan out (the devices are listed below)"))] = False
     igtl_port: Annotated[int, Field(ge=1, le=65535, description="OpenIGTLink port")] = 18944
     igtl_targets: Annotated[dict[str, tuple[FiniteFloat, FiniteFloat, FiniteFloat]], Field(
-        description='named target points sent with the markers, JSON {"name": [x, y, z]} in reference mm')] = {}
+        description='the lesions at start, sent with the markers, JSON {"name": [x, y, z]} in reference mm '
+                    '(POINT Lesions replaces them)')] = {}
     igtl_surface: Annotated[bool, Field(description="also send the deformed prostate surface (POLYDATA)")] = False
 
     @field_validator("model")

@@ -1,4 +1,5 @@
-"""OpenIGTLink: a pyigtl client as a real peer sends NeedleGuide poses and gets the deformed points of /predict."""
+"""OpenIGTLink: a pyigtl client as a real peer sends NeedleGuide poses and gets the deformed points of /predict;
+framing errors get a status and never stop the server."""
 
 import socket
 import struct
@@ -13,31 +14,11 @@ from pyigtl.messages import CRC64
 
 from service.guide import Guide, OffAxisPose
 from service.igtl import POINTS_NAME, STATUS_NAME, Responder, read_message
-from tools.loadtest import free_port
 
-from .helpers import predict_json, prostate_point
+from ..helpers import predict_json
 
 # the tiny model answers up to 5 mm, where its linear sweep stops being valid (tests/conftest.py)
 POSES = [(0.0, 0.0), (5.0, 3.0), (5.0, -10.0), (2.25, 7.5), (5.0, 10.0)]
-
-
-@pytest.fixture(scope="module")
-def served(tiny_model, tiny_folder):  # noqa: F811
-    """The app with OpenIGTLink on (as `--igtl true` starts it), one target in the prostate."""
-    from service.app import create_app
-    from service.settings import Settings
-
-    target = prostate_point(tiny_folder)
-    settings = Settings(model=tiny_model, igtl=True, igtl_port=free_port(), igtl_targets={"lesion": target})
-    with TestClient(create_app(settings)) as client:
-        yield client, settings.igtl_port, target
-
-
-@pytest.fixture()
-def peer(served):
-    client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=served[1])
-    yield client
-    client.stop()
 
 
 def _ask(peer, matrix, device=POINTS_NAME):
@@ -175,3 +156,31 @@ def test_a_target_outside_the_mesh_stops_the_start(tiny_model):  # noqa: F811
                           "--igtl-targets", '{"far": [0, 0, 500]}'], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--igtl-targets: 'far'" in run.stderr and "outside the mesh" in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_a_material_model_sends_its_2_sigma_spheres_over_the_socket(tiny_material_model):
+    """Over a real socket (pyigtl packs the diameters: a list, since it tests `not diameters`), after
+    NeedleGuideMaterials: each point's diameter is 4 |std| of /predict's markers at those stiffnesses."""
+    import json
+
+    from service.app import create_app
+    from service.model import read_model_folder
+    from service.settings import Settings
+    from tools.loadtest import free_port
+
+    folder = read_model_folder(tiny_material_model)
+    materials = {"prostate": {"youngs_kpa": 80.0, "std_percent": 10.0}}
+    settings = Settings(model=tiny_material_model, igtl=True, igtl_port=free_port())
+    with TestClient(create_app(settings)) as client:
+        peer = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=settings.igtl_port)
+        try:
+            peer.send_message(pyigtl.StringMessage(json.dumps(materials), device_name="NeedleGuideMaterials"), wait=True)
+            assert peer.wait_for_message(STATUS_NAME, timeout=10).string.startswith("materials set")
+            points = _ask(peer, Guide.of(folder.manifest).pose(4.0, 3.0))
+        finally:
+            peer.stop()
+        reply = predict_json(client, displacement_mm=4.0, angle_deg=3.0, region="markers", materials=materials)
+    sigma = np.linalg.norm(reply["std_mm"], axis=1)
+    assert sigma.min() > 1e-3
+    np.testing.assert_allclose(points.positions, reply["positions"], atol=1e-4)
+    np.testing.assert_allclose(points.diameters, 4 * sigma, rtol=1e-5)
