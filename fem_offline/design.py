@@ -28,43 +28,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
-
 from contracts import sweep as folder
+from contracts.design import DESIGN_FILE, Design, DesignPoint
 from contracts.materials import ratio_point
 from contracts.mesh import TetMesh, read_mesh, write_mesh
 
 from fem_offline.material_cases import scaled_scene
 from fem_offline.scene import Scene, SceneError
 from fem_offline.sweep import grid, prepare, run_jobs, write_manifest
-
-DESIGN_FILE = "design.json"
-DESIGN_FORMAT = 1
-
-
-class DesignPoint(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    folder: str  # the point's sweep folder, relative to the design's
-    angle_deg: float  # beta_k >= 0; the folder also holds -beta_k
-    theta: dict[str, float]  # tissue -> ln(E / E_nominal), at the box's point nearest the nominal with these ratios
-
-
-class Design(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    format: int = DESIGN_FORMAT
-    scene_name: str
-    scene_sha256: str
-    kind: str  # "sobol": a scrambled Sobol sequence; "held_out": the box's corners, then Sobol points of another seed
-    seed: int
-    sensitivities: bool
-    sensitivity_every: int  # S_i at every this-many-th displacement of a path (1: all)
-    angle_max_deg: float
-    tissues: list[str]
-    log_box: dict[str, tuple[float, float]]  # tissue -> (lo, hi) of theta
-    points: list[DesignPoint]
-
 
 def log_box(scene: Scene) -> dict[str, tuple[float, float]]:
     """Each material tissue's range as theta = ln(E / E_nominal)."""
@@ -110,7 +81,12 @@ def design_scene(scene: Scene, point: DesignPoint, *, sensitivities: bool) -> Sc
     at = scaled_scene(scene, tissues, np.array([point.theta[t] for t in tissues]))
     b = point.angle_deg
     sweep = at.sweep.model_copy(update={"angle_min_deg": -b, "angle_max_deg": b, "angle_step_deg": 2 * b if b > 0 else 1.0})
-    return at.model_copy(update={"sweep": sweep, "materials": scene.materials if sensitivities else None})
+    materials = None
+    if sensitivities:  # the ranges as the base scene's, widened to hold a corner's E that rounding put just outside
+        materials = {t: m.model_copy(update={"youngs_kpa_range": (min(m.youngs_kpa_range[0], at.tissues[t].youngs),
+                                                                  max(m.youngs_kpa_range[1], at.tissues[t].youngs))})
+                     for t, m in scene.materials.items()}
+    return at.model_copy(update={"sweep": sweep, "materials": materials})
 
 
 def make_design(scene: Scene, *, n: int, seed: int, sensitivities: bool, held_out: bool,
@@ -121,8 +97,8 @@ def make_design(scene: Scene, *, n: int, seed: int, sensitivities: bool, held_ou
     points = [DesignPoint(folder=f"p{k:03d}", angle_deg=round(float(r[0]), 6),
                           theta={t: round(float(v), 9) for t, v in zip(box, r[1:])}) for k, r in enumerate(rows)]
     return Design(scene_name=scene.name, scene_sha256=scene.sha256(), kind="held_out" if held_out else "sobol",
-                  seed=seed, sensitivities=sensitivities, sensitivity_every=sensitivity_every, angle_max_deg=beta_max, tissues=list(box), log_box=box,
-                  points=points)
+                  seed=seed, sensitivities=sensitivities, sensitivity_every=sensitivity_every, angle_max_deg=beta_max,
+                  tissues=list(box), log_box=box, points=points, scene=scene.model_dump(mode="json"))
 
 
 def open_design(scene: Scene, out: Path, design: Design) -> Design:
@@ -133,10 +109,12 @@ def open_design(scene: Scene, out: Path, design: Design) -> Design:
         old = Design.model_validate_json(path.read_text())
         if old.scene_sha256 != scene.sha256():
             raise SceneError(f"{out} holds a design of another scene (sha256 {old.scene_sha256[:12]}); use a new --out")
-        if old != design:
+        if old.model_copy(update={"scene": design.scene}) != design:
             raise SceneError(f"{out} holds another design ({old.kind}, {len(old.points)} points, seed {old.seed}, "
                              f"sensitivities {old.sensitivities}); use a new --out or the same options")
-        return old
+        if old.scene is None:  # written before the base scene was recorded: record it
+            path.write_text(design.model_dump_json(indent=1) + "\n")
+        return design
     path.write_text(design.model_dump_json(indent=1) + "\n")
     return design
 

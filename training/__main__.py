@@ -56,6 +56,18 @@ def _parser() -> argparse.ArgumentParser:
                        "against fresh FE (`fem_offline material-cases`), without refitting")
     k.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
     k.add_argument("--cases", required=True, type=Path, help="a `fem_offline material-cases` output folder on its mesh")
+    e = sub.add_parser("fit-design", help="PCA + a network on (d, beta, theta) fitted to values and theta-derivatives "
+                       "of a `fem_offline design` folder: a model right over the stiffness box, not first order")
+    e.add_argument("--design", required=True, type=Path, help="a `fem_offline design` output folder")
+    e.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
+    e.add_argument("--held-out", type=Path, help="a `fem_offline design --held-out` folder on the same mesh to check against")
+    e.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="u / d's PCA modes (default 16)")
+    e.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=0), default=32,
+                   help="extra modes for what u's leave of the S_i / d (default 32)")
+    e.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units (default 60)")
+    e.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000,
+                   help="L-BFGS iterations (default 1000)")
+    e.add_argument("--seed", type=number("--seed", int), default=0)
     g = sub.add_parser("regraph", help="rebuild a material model's ONNX graph from its own weights with today's graph "
                        "builder, without refitting (refused unless both graphs answer the same)")
     g.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
@@ -108,6 +120,25 @@ def _regraph(args) -> int:
     return 0
 
 
+def _fit_design(args) -> int:
+    from contracts.model import FitOptions
+
+    from .design_fit import fit_design
+
+    options = FitOptions(rank=args.rank, sensitivity_rank=args.sensitivity_rank, width=args.width, depth=1,
+                         max_iterations=args.iterations, seed=args.seed, test_cases=())
+    try:
+        manifest = fit_design(args.design, args.out, options, held_out=args.held_out)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    acc = manifest.accuracy
+    worst = ", ".join(f"{k} {v.surrogate_mm:.4f} mm" for k, v in acc.regions.items()) or acc.reference
+    print(f"{args.out}: {manifest.network.n_train} snapshots, rank {manifest.pca.rank}, "
+          f"{manifest.timing.train_seconds:.1f} s; held-out: {worst}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -117,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         return _material_check(args)
     if args.command == "regraph":
         return _regraph(args)
+    if args.command == "fit-design":
+        return _fit_design(args)
     from .fit import PAPER_TEST_CASES, FitOptions, fit, summary_line
 
     options = FitOptions(rank=args.rank, sensitivity_rank=args.sensitivity_rank, width=args.width, depth=args.depth, max_iterations=args.iterations,

@@ -82,10 +82,10 @@ def reference_decode(layers, pca: Pca, guide: np.ndarray) -> np.ndarray:
     return (d * pca.decode(coefficients)).reshape(len(d), -1, 3)
 
 
-def network_nodes(layers) -> tuple[list, list]:
+def network_nodes(layers, source: str = "guide") -> tuple[list, list]:
     """The network's initializers and nodes: d = guide[:, :1] (the factor of u = d f), then a Gemm per layer
-    (Tanh between) from `guide` to `coefficients`."""
-    inits, nodes, h = [], [helper.make_node("Slice", ["guide", "zero1", "one1", "one1"], ["d"])], "guide"
+    (Tanh between) from `source` (the guide, or a design model's guide and materials) to `coefficients`."""
+    inits, nodes, h = [], [helper.make_node("Slice", ["guide", "zero1", "one1", "one1"], ["d"])], source
     for i, (w, b) in enumerate(layers):
         inits += [initializer(f"w{i}", w.astype(np.float32)), initializer(f"b{i}", b.astype(np.float32))]
         out = "coefficients" if i == len(layers) - 1 else f"z{i}"

@@ -30,12 +30,11 @@ class Scaling:
 
 
 class Mlp(nn.Module):
-    """inputs (n, 2) -> hidden layers of `width` tanh units -> (n, rank)."""
+    """inputs (n, n_in) -> hidden layers of `width` tanh units -> (n, rank); n_in 2: (displacement_mm, angle_deg)."""
 
-    def __init__(self, rank: int, width: int = 60, depth: int = 1):
+    def __init__(self, rank: int, width: int = 60, depth: int = 1, n_in: int = 2):
         super().__init__()
         layers: list[nn.Module] = []
-        n_in = 2
         for _ in range(depth):
             layers += [nn.Linear(n_in, width), nn.Tanh()]
             n_in = width

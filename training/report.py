@@ -107,3 +107,22 @@ def _material_lines(manifest: ModelManifest) -> list[str]:
         fe = manifest.accuracy.regions[k].fe_discretisation_mm if k in manifest.accuracy.regions else None
         lines.append(f"| {k} | {r.first_order_mm:.4f} | {r.model_mm:.4f} | {_mm(None if fe is None else r.model_mm + fe)} |")
     return lines + [""]
+
+
+def design_markdown(manifest: ModelManifest, checked: dict | None) -> str:
+    """A design model's report: what it was fitted on, and its errors against the held-out design's fresh FE."""
+    lines = [f"# Model `{manifest.name}`: a design model over the stiffness box", "",
+             f"Scene `{manifest.scene.name}` (sha256 {manifest.scene.sha256[:12]}), {manifest.mesh.n_nodes} nodes, "
+             f"{manifest.mesh.n_tets} quadratic tets. PCA rank {manifest.pca.rank}; MLP 1x{manifest.network.width} "
+             f"tanh on (d, beta, theta), fitted to values and theta-derivatives in {manifest.timing.train_seconds:.1f} s "
+             f"on {manifest.network.n_train} snapshots.", ""]
+    if checked is None:
+        return "\n".join([*lines, "Not checked against held-out FE (no `--held-out` design).", ""])
+    lines += [f"Against fresh FE at {checked['n_points']} held-out material points x (-beta, beta) "
+              f"({checked['n_snapshots']} snapshots; the surrogate's error alone, on its own mesh):", "",
+              "| region | every push (mm) | largest push (mm) |", "|---|---|---|"]
+    lines += [f"| {k} | {v['all_mm']:.4f} | {v['largest_push_mm']:.4f} |" for k, v in checked["regions"].items()]
+    if checked["unfinished"]:
+        lines += ["", f"Held-out points whose paths stopped short (what they reached is compared): "
+                  f"{', '.join(checked['unfinished'])}."]
+    return "\n".join([*lines, ""])
