@@ -5,7 +5,7 @@ import re
 
 import numpy as np
 import pytest
-from .helpers import predict_json
+from .helpers import predict_json, prostate_point, served
 
 from service.viewer import STATIC
 from tools.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
@@ -18,11 +18,11 @@ def test_page_and_three_js_come_from_the_service(tiny_client):  # noqa: F811
     page = tiny_client.get("/viewer")
     assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
     assert '"three": "/viewer/vendor/three.module.js"' in page.text
-    for name in ("viewer.js", "vendor/three.module.js", "vendor/three.core.js", "vendor/OrbitControls.js"):
+    for name in ("viewer.js", "plan.js", "vendor/three.module.js", "vendor/three.core.js", "vendor/OrbitControls.js"):
         reply = tiny_client.get(f"/viewer/{name}")
         assert reply.status_code == 200 and reply.headers["content-type"].startswith("text/javascript"), name
         assert reply.content == (STATIC / name).read_bytes()
-    for own in ("index.html", "viewer.js", "viewer.css"):  # nothing fetched from elsewhere at run time
+    for own in ("index.html", "viewer.js", "plan.js", "viewer.css"):  # nothing fetched from elsewhere at run time
         assert not re.search(r"https?://|//cdn|@import", (STATIC / own).read_text()), own
     assert tiny_client.get("/viewer/../settings.py").status_code == 404
     assert tiny_client.get("/viewer/nothing.js").status_code == 404
@@ -314,3 +314,117 @@ def test_a_material_model_gets_one_stiffness_slider_per_tissue_and_shows_its_unc
     assert page.evaluate("__viewer.haloRadiusMm") == pytest.approx(2 * sigma, rel=1e-6)
     assert "1σ up to" in page.inner_text("#uncertainty") and "halo: 2σ" in page.inner_text("#uncertainty")
     assert problems == []
+
+
+def _ray_distance(line: list[float], point) -> float:
+    """Distance of `point` from the ray a drawn needle path starts (its first point, towards its second)."""
+    start, end = np.reshape(line, (2, 3))
+    a = (end - start) / np.linalg.norm(end - start)
+    v = np.asarray(point) - start
+    return float(np.linalg.norm(v - max(v @ a, 0.0) * a))
+
+
+def _lesions(folder) -> list[list[float]]:
+    """A prostate point moved onto the needle's tilt plane (a ray reaches it) and the point itself."""
+    from service.guide import Guide
+
+    guide, p = Guide.of(folder.manifest), np.array(prostate_point(folder))
+    return [(p - ((p - guide.tip_mm) @ guide.tilt_normal) * guide.tilt_normal).round(3).tolist(), p.round(3).tolist()]
+
+
+@needs_chromium
+def test_lesions_in_the_url_are_drawn_before_and_after_with_their_plan_and_the_needle_paths(viewer, browser, tiny_client,
+                                                                                           tiny_folder, tmp_path):
+    """?lesions= adds each lesion and asks /plan: its reference and displaced positions, the sliders' needle path and
+    the planned pose are in the scene; "Go to plan" moves the guide there, where the drawn needle path passes the drawn
+    lesion at the miss /plan states."""
+    _, _, url = viewer
+    lesions = _lesions(tiny_folder)
+    query = "lesions=" + ";".join(",".join(map(str, p)) for p in lesions)
+    with open_viewer(url, browser=browser, query=query) as (page, problems):
+        page.wait_for_function("__viewer.plans === 2 && __viewer.ready && !__viewer.busy", timeout=60_000)
+        objects, targets = page.evaluate("__viewer.objects()"), page.evaluate("__viewer.targets")
+        for name in ("needle-path", "planned-guide", "planned-needle-path", "planned-lesion", "T1-reference",
+                     "T1-displaced", "T2-reference", "T2-displaced"):
+            assert objects[name]["visible"], name
+        np.testing.assert_allclose([objects["T1-reference"]["position"], objects["T2-reference"]["position"]], lesions,
+                                   atol=1e-4)
+        plans = [tiny_client.post("/plan", json={"lesion_mm": p}).json() for p in lesions]
+        assert [t["plan"] for t in targets] == plans  # at the best push: /plan's reply, as the page got it
+        shown = plans[1]  # the last planned is drawn: its needle path from the pushed tip along a(beta)
+        path = np.reshape(objects["planned-needle-path"]["points"], (2, 3))
+        np.testing.assert_allclose(path[0], shown["needle_tip_mm"], atol=1e-4)
+        np.testing.assert_allclose((path[1] - path[0]) / np.linalg.norm(path[1] - path[0]), shown["needle_direction"],
+                                   atol=1e-5)
+        np.testing.assert_allclose(objects["planned-lesion"]["position"], shown["plan"]["lesion_mm"], atol=1e-4)
+
+        # at the push the clinician wants (the slider's, 4 mm), the lesion moves before the needle meets it
+        set_slider(page, "displacement", 4.0)
+        page.check("#plan-at-push")
+        page.click("#targets li:nth-child(1) button.plan")
+        page.wait_for_function("__viewer.plans === 3 && !__viewer.busy")
+        at_push = tiny_client.post("/plan", json={"lesion_mm": lesions[0], "displacement_mm": 4.0}).json()
+        assert page.evaluate("__viewer.targets[0].plan") == at_push and at_push["reachable"]
+        plan = at_push["plan"]
+        set_slider(page, "displacement", 0.0)
+        page.click("#targets li:nth-child(1) button.go")
+        page.wait_for_function("(d) => __viewer.lastFrame.displacement_mm === d && !__viewer.busy",
+                               arg=plan["displacement_mm"])
+        moved = page.evaluate("__viewer.targets[0].position")
+        case = {"displacement_mm": plan["displacement_mm"], "angle_deg": plan["angle_deg"]}
+        np.testing.assert_allclose(moved, predict_json(tiny_client, points=[lesions[0]], **case)["positions"][0], atol=0.01)
+        assert np.linalg.norm(np.subtract(moved, lesions[0])) > 0.1  # before and after differ
+        needle = page.evaluate("__viewer.objects()['needle-path'].points")
+        assert _ray_distance(needle, moved) == pytest.approx(plan["miss_mm"], abs=0.01) and plan["miss_mm"] < 0.05
+        assert "plan d " in page.inner_text("#targets li:nth-child(1)")
+
+        wait_still(page)  # not blank: the displaced lesion, drawn over the prostate, is red where it projects
+        shot = _pixels(page, {"x": 0, "y": 0, "width": 980, "height": 800})
+        assert shot.std() > 10
+        at = page.evaluate("(p) => __viewer.screenPoint(p)", moved)
+        x, y = int(round(at["x"])), int(round(at["y"]))
+        near = shot[y - 2:y + 3, x - 2:x + 3].reshape(-1, 3)
+        assert ((near[:, 0] > 180) & (near[:, 1] < 90) & (near[:, 2] < 90)).any(), near
+        page.screenshot(path=tmp_path / "lesions.png")
+        assert problems == []
+
+
+@needs_chromium
+def test_a_lesion_typed_into_the_form_is_added_and_planned(viewer, browser, tiny_folder):
+    _, _, url = viewer
+    lesion = _lesions(tiny_folder)[0]
+    with open_viewer(url, browser=browser) as (page, problems):
+        for axis, value in zip("xyz", lesion):
+            page.fill(f"#lesion-{axis}", str(value))
+        page.click("#add-lesion")
+        page.wait_for_function("__viewer.plans === 1 && __viewer.targets.length === 1 && !__viewer.busy")
+        target = page.evaluate("__viewer.targets[0]")
+        assert target["reference"] == lesion and target["plan"]["plan"]["miss_mm"] < 2.5
+        assert page.evaluate("__viewer.objects()['plan'].visible")
+        page.click("#clear-targets")
+        objects = page.evaluate("__viewer.objects()")
+        assert "T1-displaced" not in objects and not objects["plan"]["visible"] and problems == []
+
+
+@needs_chromium
+def test_a_material_models_lesion_has_a_2_sigma_halo_of_its_own_std(material_viewer, browser, tiny_material_model):
+    """A lesion's halo has radius 2 |std| of /predict `points` at the sliders' stiffnesses (the markers' convention,
+    for the lesion's own std)."""
+    from contracts.model import read_model_folder
+
+    _, _, url = material_viewer
+    folder = read_model_folder(tiny_material_model)
+    lesion = _lesions(folder)[1]
+    with open_viewer(url, browser=browser) as (page, problems):
+        set_slider(page, "displacement", 4.0)
+        page.evaluate("(p) => __viewer.addTarget(p, { plan: true })", lesion)
+        page.wait_for_function("__viewer.plans === 1 && __viewer.targets[0].sigmaMm !== null && !__viewer.busy")
+        target, halo = page.evaluate("__viewer.targets[0]"), page.evaluate("__viewer.objects()['T1-halo']")
+        nominal = {m.tissue: {"youngs_kpa": m.nominal_youngs_kpa} for m in folder.manifest.materials.inputs}
+        with served(tiny_material_model) as client:
+            reply = predict_json(client, displacement_mm=4.0, angle_deg=0.0, points=[lesion], materials=nominal)
+        sigma = float(np.linalg.norm(reply["std_mm"][0]))
+        assert sigma > 1e-3 and target["sigmaMm"] == pytest.approx(sigma, rel=1e-6)
+        assert halo["visible"] and halo["scale"] == pytest.approx(2 * sigma, rel=1e-6)
+        np.testing.assert_allclose(halo["position"], reply["positions"][0], atol=1e-4)
+        assert "1σ" in page.inner_text("#targets") and problems == []

@@ -6,8 +6,11 @@
 // next frame shows the latest value. Slider-to-frame latency, from the input event whose value the
 // frame shows to WebGL finished, is shown bottom left and kept in window.__viewer; so is the time
 // from the first input the frame answers (the older, coalesced ones).
+// Each target is a lesion: its reference position, where the tissue carries it (with a 2-sigma halo for a material
+// model), and on request the pose POST /plan aims the needle with (plan.js draws it and the needle paths).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/OrbitControls.js';
+import { describePlan, direction, GUIDE_LENGTH_MM, NeedlePath, parseLesions, placeGuideBody, PlannedPose } from './plan.js';
 
 const BINARY = 'application/octet-stream';
 const COLOURS = { prostate: 0xd6604d, rectal_wall: 0xa6611a, bladder: 0x6a9fd4, pubic_bone: 0xe6e2d2,
@@ -15,7 +18,6 @@ const COLOURS = { prostate: 0xd6604d, rectal_wall: 0xa6611a, bladder: 0x6a9fd4, 
 // viridis at 0, 1/4, 1/2, 3/4, 1: the prostate's displacement magnitude, 0 .. colour_scale_mm (scene.json)
 const COLOUR_MAP = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383],
   [0.993, 0.906, 0.144]];
-const GUIDE_LENGTH_MM = 12;
 // see-through: the fat around everything, and the rectal wall around the guide
 const OPACITY = { adipose: 0.1, rectal_wall: 0.45 };
 const $ = (id) => document.getElementById(id);
@@ -23,7 +25,7 @@ const $ = (id) => document.getElementById(id);
 const viewer = window.__viewer = {
   ready: false, frames: 0, lastFrameMs: null, lastFirstInputMs: null, lastInputs: null, lastFetchMs: null,
   lastRenderMs: null, lastRequests: null, errors: [], targets: [], lastFrame: null, webgl: null, antialias: null,
-  dragScale: 1, stillFrames: 0, lastBuffer: null,
+  dragScale: 1, stillFrames: 0, lastBuffer: null, plans: 0,
 };
 // pendingSince: the first input not yet drawn (null: nothing to draw); latestInput: the last one,
 // whose values (d, a) the next frame shows; inputs: how many the next frame answers.
@@ -32,7 +34,7 @@ const state = { d: 0, a: 0, inflight: false, pendingSince: null, latestInput: nu
 Object.defineProperty(viewer, 'busy', { get: () => state.inflight || state.pendingSince !== null });
 // whether the view on screen is drawn at full resolution (a drag's frames may not be: setScale)
 Object.defineProperty(viewer, 'still', { get: () => renderer?.getPixelRatio() === window.devicePixelRatio });
-let scene, camera, renderer, controls, gl, markers, guide, info;
+let scene, camera, renderer, controls, gl, markers, guide, info, needle, planned;
 
 function colourInto(out, at, t) {  // viridis at t in 0..1, written to out[at .. at + 2]
   const x = Math.min(Math.max(t, 0), 1) * (COLOUR_MAP.length - 1);
@@ -49,11 +51,15 @@ function showError(err) {
 
 // A material model's stiffness sliders (E in kPa) go with every request; its replies carry X-Std-Max-Mm,
 // the largest 1-sigma length at the returned points, kept on the array as stdMaxMm.
-async function predict(body) {
+function withMaterials(body) {
   if (info.materials) {
     body.materials = Object.fromEntries(info.materials.map((m) => [m.tissue, { youngs_kpa: state.youngs[m.tissue] }]));
   }
-  const reply = await fetch('/predict', { method: 'POST', body: JSON.stringify(body),
+  return body;
+}
+
+async function predict(body) {
+  const reply = await fetch('/predict', { method: 'POST', body: JSON.stringify(withMaterials(body)),
     headers: { 'content-type': 'application/json', accept: BINARY } });
   if (!reply.ok) throw new Error(`/predict ${reply.status}: ${await reply.text()}`);
   const positions = new Float32Array(await reply.arrayBuffer());  // little-endian on every WebGL platform
@@ -62,11 +68,17 @@ async function predict(body) {
   return positions;
 }
 
-function direction(angleDeg) {  // a(beta) = axis cos b + (n x axis) sin b
-  const b = THREE.MathUtils.degToRad(angleDeg);
-  const axis = new THREE.Vector3(...info.guide.axis);
-  const side = new THREE.Vector3(...info.guide.tilt_normal).cross(axis);
-  return axis.multiplyScalar(Math.cos(b)).addScaledVector(side, Math.sin(b));
+// A material model's targets, as JSON: their positions and each one's 1-sigma length |std_mm| (kept as sigmaMm),
+// which the binary reply does not carry (it has only their largest, X-Std-Max-Mm).
+async function predictPoints(body) {
+  const reply = await fetch('/predict', { method: 'POST', body: JSON.stringify(withMaterials(body)),
+    headers: { 'content-type': 'application/json', accept: 'application/json' } });
+  if (!reply.ok) throw new Error(`/predict ${reply.status}: ${await reply.text()}`);
+  const json = await reply.json();
+  const positions = Float32Array.from(json.positions.flat());
+  positions.sigmaMm = json.std_mm.map((s) => Math.hypot(...s));
+  positions.stdMaxMm = Math.max(...positions.sigmaMm, 0);
+  return positions;
 }
 
 function buildLayer(layer) {
@@ -157,6 +169,10 @@ function buildScene() {
   guide = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius, GUIDE_LENGTH_MM, 32),
     new THREE.MeshPhongMaterial({ color: 0x8fd18f, transparent: true, opacity: 0.85 }));
   scene.add(guide, motionLine(info.guide.tip_mm, info.guide.tip_mm));
+  // the needle paths reach through the prostate and past it
+  const needleMm = new THREE.Vector3(...info.guide.tip_mm).distanceTo(centre) + prostate.geometry.boundingSphere.radius + 10;
+  needle = new NeedlePath(scene, needleMm);
+  planned = new PlannedPose(scene, guide.geometry, needleMm);
   window.addEventListener('resize', () => {
     renderer.setSize(view.clientWidth, view.clientHeight);
     camera.aspect = view.clientWidth / view.clientHeight;
@@ -188,10 +204,10 @@ function scheduleStill() {
 }
 
 function placeGuide(d, a) {
-  const dir = direction(a);  // the tip moves by d a(beta); the body lies behind the tip
+  const dir = direction(info.guide, a);  // the tip moves by d a(beta)
   const tip = new THREE.Vector3(...info.guide.tip_mm).addScaledVector(dir, d);
-  guide.position.copy(tip).addScaledVector(dir, -GUIDE_LENGTH_MM / 2);
-  guide.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), dir);
+  placeGuideBody(guide, tip, dir);
+  needle.place(tip, dir);
 }
 
 function applyLayer(layer, replies) {
@@ -278,7 +294,8 @@ function interpolateTarget(target, replies) {
   return out;
 }
 
-// `points`: a /predict points reply for all targets, or null where each is interpolated from `replies`
+// `points`: a /predict points reply for all targets, or null where each is interpolated from `replies`.
+// A material model's reply carries each target's sigma: its halo has radius halo_sigmas x sigma, as the markers'.
 function applyTargets(targets, replies, points) {
   targets.forEach((target, i) => {
     const now = points ? points.subarray(3 * i, 3 * i + 3) : interpolateTarget(target, replies);
@@ -288,9 +305,23 @@ function applyTargets(targets, replies, points) {
     const line = target.line.geometry.attributes.position;
     line.array.set(now, 3);
     line.needsUpdate = true;
-    target.item.textContent = `T${i + 1}: moved ${target.motionMm.toFixed(2)} mm`;
+    let text = `${target.label}: moved ${target.motionMm.toFixed(2)} mm`;
+    if (target.halo && points?.sigmaMm) {
+      target.sigmaMm = points.sigmaMm[i];
+      const r = Math.max(info.halo_sigmas * target.sigmaMm, 1e-3);
+      target.halo.position.set(now[0], now[1], now[2]);
+      target.halo.scale.set(r, r, r);
+      text += ` (1σ ${target.sigmaMm.toFixed(3)} mm)`;
+    }
+    target.text.textContent = text;
   });
-  viewer.targets = state.targets.map(({ reference, position, motionMm, frame }) => ({ reference, position, motionMm, frame }));
+  publishTargets();
+}
+
+function publishTargets() {
+  viewer.targets = state.targets.map(({ reference, position, motionMm, frame, sigmaMm, halo, plan }) => ({
+    reference, position, motionMm, frame, sigmaMm: sigmaMm ?? null, haloRadiusMm: halo ? halo.scale.x : null,
+    plan: plan ?? null }));
 }
 
 // One frame: the latest slider values, every drawn region (and, only for a target the regions
@@ -308,8 +339,12 @@ async function frame() {
     const fetchStart = performance.now();
     const asked = regions.map((region) => predict(region === null ? { displacement_mm: d, angle_deg: a }
       : { displacement_mm: d, angle_deg: a, region }));  // null: the whole mesh
-    const askPoints = targets.some((t) => !t.local);
-    if (askPoints) asked.push(predict({ displacement_mm: d, angle_deg: a, points: targets.map((t) => t.reference) }));
+    // a target the regions cannot interpolate, or a material model's (for its sigma): /predict `points`
+    const askPoints = targets.length > 0 && (Boolean(info.materials) || targets.some((t) => !t.local));
+    if (askPoints) {
+      asked.push((info.materials ? predictPoints : predict)({ displacement_mm: d, angle_deg: a,
+        points: targets.map((t) => t.reference) }));
+    }
     const replies = await Promise.all(asked);
     const fetchMs = performance.now() - fetchStart;
     state.layers.forEach((layer) => applyLayer(layer, replies));
@@ -364,9 +399,13 @@ function setupSlider(id, [lo, hi], step, key) {
 
 // Phong like the markers (one shader program); the line's program is compiled with the first frame
 // (a zero-length line at the tip), so adding a target never waits for a shader compile.
-const TARGET = new THREE.MeshPhongMaterial({ color: 0xff3030 });
-const TARGET_ORIGIN = new THREE.MeshPhongMaterial({ color: 0xbbbbbb });
+// A lesion inside the prostate would be hidden by its surface: targets are drawn over it (no depth test).
+const TARGET = new THREE.MeshPhongMaterial({ color: 0xff3030, depthTest: false });
+const TARGET_ORIGIN = new THREE.MeshPhongMaterial({ color: 0xbbbbbb, depthTest: false });
 const MOTION_LINE = new THREE.LineBasicMaterial({ color: 0xff3030, depthTest: false });
+const TARGET_HALO = new THREE.MeshPhongMaterial({ color: 0xff3030, transparent: true, opacity: 0.25, depthTest: false,
+  depthWrite: false });
+const UNIT_SPHERE = new THREE.SphereGeometry(1, 16, 12);
 
 function motionLine(from, to) {
   const geometry = new THREE.BufferGeometry();
@@ -376,24 +415,75 @@ function motionLine(from, to) {
   return line;
 }
 
-async function addTarget(reference) {
+// A target (a lesion): its reference position (grey), where the tissue carries it (red, with a material model's
+// halo), the line between; `plan`: ask /plan for it at once (else its Plan button does).
+async function addTarget(reference, { plan = false } = {}) {
   const reply = await fetch('/viewer/targets', { method: 'POST', body: JSON.stringify({ points: [reference] }),
     headers: { 'content-type': 'application/json' } });
   if (!reply.ok) throw new Error(`/viewer/targets ${reply.status}: ${await reply.text()}`);
   const [tet] = (await reply.json()).targets;  // its tet's nodes: where they arrive in a frame, and their weights
   const local = tet.source.every((s) => s >= 0);  // else the frame asks /predict points for it
-  const i = state.targets.length;
+  const label = `T${state.targets.length + 1}`;
   const sphere = new THREE.Mesh(new THREE.SphereGeometry(1.0, 16, 12), TARGET);
   const origin = new THREE.Mesh(new THREE.SphereGeometry(0.6, 12, 8), TARGET_ORIGIN);
   origin.position.set(...reference);
   sphere.position.set(...reference);
   const line = motionLine(reference, reference);
-  const item = document.createElement('li');
-  item.textContent = `T${i + 1}: …`;
+  const halo = info.materials ? new THREE.Mesh(UNIT_SPHERE, TARGET_HALO) : null;
+  Object.assign(sphere, { name: `${label}-displaced`, renderOrder: 3 });
+  Object.assign(origin, { name: `${label}-reference`, renderOrder: 2 });
+  Object.assign(line, { name: `${label}-motion` });
+  if (halo) halo.renderOrder = 4;
+  const target = { label, reference, tet, local, now: new Float64Array(3), sphere, origin, line, halo,
+    motionMm: null, position: null, frame: null, plan: null };
+  target.item = targetItem(target);
+  scene.add(sphere, origin, line, ...(halo ? [Object.assign(halo, { name: `${label}-halo` })] : []));
+  state.targets.push(target);
+  request(performance.now());
+  if (plan) await planTarget(target);
+}
+
+function targetItem(target) {
+  const item = document.createElement('li'), text = document.createElement('span'), planText = document.createElement('div');
+  const planButton = document.createElement('button'), go = document.createElement('button');
+  text.textContent = `${target.label}: …`;
+  Object.assign(planButton, { type: 'button', textContent: 'Plan', className: 'plan', title: 'POST /plan: the guide pose whose needle path passes closest to this lesion once the tissue has moved' });
+  Object.assign(go, { type: 'button', textContent: 'Go to plan', className: 'go', disabled: true, title: 'move the sliders to the planned pose' });
+  planButton.addEventListener('click', () => planTarget(target).catch(showError));
+  go.addEventListener('click', () => target.plan && setGuide(target.plan.plan.displacement_mm, target.plan.plan.angle_deg));
+  planText.className = 'plan-text';
+  item.append(text, ' ', planButton, ' ', go, planText);
   $('targets').appendChild(item);
-  scene.add(sphere, origin, line);
-  state.targets.push({ reference, tet, local, now: new Float64Array(3), sphere, origin, line, item,
-    motionMm: null, position: null, frame: null });
+  Object.assign(target, { text, planText, go });
+  return item;
+}
+
+// POST /plan for a target at the stiffness sliders (and, when asked, at the slider's push: the push the clinician
+// wants); its planned pose is drawn (the selected plan) and stated.
+async function planTarget(target) {
+  const body = withMaterials({ lesion_mm: target.reference });
+  if ($('plan-at-push').checked) body.displacement_mm = state.d;
+  const reply = await fetch('/plan', { method: 'POST', body: JSON.stringify(body),
+    headers: { 'content-type': 'application/json' } });
+  if (!reply.ok) throw new Error(`/plan ${reply.status}: ${await reply.text()}`);
+  if (!state.targets.includes(target)) return;  // cleared meanwhile
+  target.plan = await reply.json();
+  target.planText.textContent = describePlan(target.plan);
+  target.go.disabled = false;
+  state.selected = target;
+  planned.show(target.plan);
+  viewer.plans += 1;
+  publishTargets();
+  render();
+}
+
+// Move both guide sliders (to a planned pose) and draw the frame.
+function setGuide(d, a) {
+  for (const [id, key, value] of [['displacement', 'd', d], ['angle', 'a', a]]) {
+    $(id).value = String(value);  // shown at the slider's step; drawn exactly
+    state[key] = value;
+    $(`${id}-value`).textContent = value.toFixed(2);
+  }
   request(performance.now());
 }
 
@@ -441,13 +531,29 @@ viewer.prostateScreenPoint = () => {
   }
   return null;
 };
+viewer.screenPoint = (xyz) => {  // for tests: the client coordinates of a point (mm) in the view
+  const rect = renderer.domElement.getBoundingClientRect(), ndc = new THREE.Vector3(...xyz).project(camera);
+  return { x: rect.left + (ndc.x + 1) / 2 * rect.width, y: rect.top + (1 - ndc.y) / 2 * rect.height };
+};
 viewer.contextAntialias = () => gl.getContextAttributes().antialias;  // for tests: what the context got
 viewer.fullBuffer = () => [renderer.domElement.clientWidth, renderer.domElement.clientHeight].map(
   (n) => Math.floor(n * window.devicePixelRatio));  // the drawing buffer at full resolution
 viewer.buffer = () => [gl.drawingBufferWidth, gl.drawingBufferHeight];
 viewer.cameraPosition = () => camera.position.toArray();
 viewer.cameraDistance = () => camera.position.distanceTo(controls.target);
-viewer.addTarget = (reference) => addTarget(reference).catch(showError);  // for tests: a target at a reference point
+viewer.addTarget = (reference, options) => addTarget(reference, options).catch(showError);  // for tests: a target at a reference point
+// for tests: the scene graph's named objects, as drawn (world position, scale, visible along the parents)
+viewer.objects = () => {
+  const out = {};
+  scene.traverse((o) => {
+    if (!o.name) return;
+    let visible = o.visible;
+    for (let p = o.parent; p; p = p.parent) visible &&= p.visible;
+    out[o.name] = { type: o.type, visible, position: o.getWorldPosition(new THREE.Vector3()).toArray(), scale: o.scale.x,
+      points: o.isLine ? Array.from(o.geometry.attributes.position.array) : null };
+  });
+  return out;
+};
 viewer.targetsLocal = () => state.targets.map((t) => t.local);
 viewer.markerPositions = () => Array.from(state.markerPositions);  // for tests: the markers as drawn (mm)  // each interpolated on the page, or asked by points
 
@@ -475,13 +581,24 @@ async function main() {
     down = null;
   });
   $('clear-targets').addEventListener('click', () => {
-    state.targets.forEach((t) => scene.remove(t.sphere, t.origin, t.line));
+    state.targets.forEach((t) => scene.remove(t.sphere, t.origin, t.line, ...(t.halo ? [t.halo] : [])));
     state.targets = [];
+    state.selected = null;
+    planned.hide();
     viewer.targets = [];
     $('targets').replaceChildren();
     render();
   });
+  $('lesion-form').addEventListener('submit', (event) => {
+    event.preventDefault();
+    addTarget(['lesion-x', 'lesion-y', 'lesion-z'].map((id) => Number($(id).value)), { plan: true }).catch(showError);
+  });
+  // the selected plan is made again at the stiffnesses a slider is released at
+  $('materials').addEventListener('change', () => state.selected && planTarget(state.selected).catch(showError));
   request(performance.now());
+  for (const lesion of parseLesions(new URLSearchParams(window.location.search).get('lesions'))) {
+    await addTarget(lesion, { plan: true });
+  }
   viewer.ready = true;
 }
 

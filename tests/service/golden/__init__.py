@@ -249,7 +249,13 @@ def replay(client, request: dict) -> dict:
     return _record(reply.status_code, dict(reply.headers), reply.content)
 
 
+# A served file's validators come from its mtime on this disk (Starlette's FileResponse), which a checkout sets:
+# recorded as present, not by value, so a fresh clone compares the same.
+FILE_VALIDATORS = ("etag", "last-modified")
+
+
 def _record(status: int, headers: dict, body: bytes) -> dict:
+    headers = {k: "(from the file's mtime)" if k in FILE_VALIDATORS else v for k, v in headers.items()}
     out = {"status": status, "headers": dict(sorted(headers.items())), "sha256": hashlib.sha256(body).hexdigest(),
            "bytes": len(body)}
     if len(body) <= STORED_BODY_BYTES:
