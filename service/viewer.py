@@ -13,8 +13,10 @@ Each frame the page asks POST /predict for the few regions that hold every node 
 (region_cover), with the binary reply (float32 little-endian, count x 3). A target is
 interpolated on the page from the same replies, x = X + sum_i w_i (x_i - X_i) over its tet's
 nodes, which is what /predict `points` computes; so a frame is one request with targets too.
-Only a target whose tet has a node outside those regions (source -1) makes the page ask
-/predict `points` as well.
+Only a target whose tet has a node outside those regions (source -1), or a material model's targets
+(for each one's std, which the binary reply does not carry: its halo), make the page ask /predict
+`points` as well. A target is a lesion: the page asks POST /plan for it and draws the planned pose
+(static/viewer/plan.js).
 """
 
 from __future__ import annotations

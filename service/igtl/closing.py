@@ -83,7 +83,7 @@ def tracked_body(message, *, markers: list[str], references: dict[str, np.ndarra
 
 def field_name(loc: tuple, names: list[str], n_markers: int, lesions: list[str]) -> str:
     """A request field's location in the message's terms: the point's name for markers.i, points.i and targets.i."""
-    head, i, rest = (list(loc) + [None, None])[:2] + [list(loc)[2:]]
+    head, i, rest = (loc[0] if loc else None), (loc[1] if len(loc) > 1 else None), loc[2:]
     if head in ("markers", "points") and isinstance(i, int):
         where = repr(names[i + (n_markers if head == "points" else 0)])
     elif head == "targets" and isinstance(i, int) and i < len(lesions):
