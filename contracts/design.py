@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict
 
 from .materials import sensitivity_key
 from .mesh import TetMesh, read_mesh
+from .scene import RecordedScene, Scene
 from .sweep import MESH_FILE, read_manifest
 
 DESIGN_FILE = "design.json"
@@ -44,7 +45,7 @@ class Design(BaseModel):
     tissues: list[str]
     log_box: dict[str, tuple[float, float]]  # tissue -> (lo, hi) of theta
     points: list[DesignPoint]
-    scene: dict | None = None  # the base scene (its JSON): the nominal stiffnesses and the box. None: not recorded yet
+    scene: RecordedScene | None = None  # the base scene: the nominal stiffnesses and the box. None: not recorded yet
 
 
 def read_design_file(folder: str | Path) -> Design:
@@ -60,7 +61,7 @@ class DesignData:
 
     design: Design
     mesh: TetMesh
-    scene: dict  # the base scene's spec (its nominal stiffnesses and [materials] box)
+    scene: Scene  # the base scene (its nominal stiffnesses and [materials] box)
     inputs: np.ndarray  # (n, 2 + m): displacement_mm, angle_deg, theta_1 .. theta_m (design.tissues order)
     displacement: np.ndarray  # (n, n_nodes, 3) mm
     point: np.ndarray  # (n,) the design point's index

@@ -19,7 +19,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, model_validator
@@ -28,6 +28,7 @@ from .envelope import Envelope
 from .materials import MaterialsInfo
 from .files import read_manifest_json, sha256
 from .mesh import TetMesh, mesh_arrays, read_mesh
+from .scene import RecordedScene, Scene
 from .sweep import LabelMapSource
 from .tet10 import outward_triangles
 
@@ -108,7 +109,7 @@ class Accuracy(_Frozen):
 class SceneInfo(_Frozen):
     name: str
     sha256: str
-    spec: dict[str, Any]  # the validated scene the sweep was solved for
+    spec: RecordedScene  # the validated scene the sweep was solved for (contracts.scene)
 
 
 class SweepInfo(_Frozen):
@@ -210,15 +211,14 @@ class ModelManifest(_Frozen):
         return self
 
 
-def judged_by_ratios(spec: dict[str, Any], *, tissues: list[str], inputs: list[str]) -> bool:
+def judged_by_ratios(scene: Scene, *, tissues: list[str], inputs: list[str]) -> bool:
     """Whether only the inputs' stiffness ratios move the answer (contracts.materials): no force load (gravity)
     and every tissue of the mesh an input or a bone held fixed. A soft tissue left at its nominal E makes E x k
     of the inputs another patient."""
-    if spec.get("effects", {}).get("gravity", False):
+    if scene.effects.gravity:
         return False
-    defined, fixed = spec.get("tissues", {}), spec.get("effects", {}).get("fixed_bones", True)
-    loaded = [t for t in tissues if not (fixed and defined.get(t, {}).get("bone", False))]
-    return set(loaded) <= set(inputs)
+    fixed = {t for t, tissue in scene.tissues.items() if scene.effects.fixed_bones and tissue.bone}
+    return set(tissues) - fixed <= set(inputs)
 
 
 def regions(mesh: TetMesh) -> dict[str, np.ndarray]:

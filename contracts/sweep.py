@@ -1,6 +1,6 @@
 """The sweep folder: what fem_offline writes and training reads.
 
-    manifest.json               SweepManifest: format, the full scene as parsed, grid, envelope,
+    manifest.json               SweepManifest: format, the full scene (contracts.scene), grid, envelope,
                                 counts, one record per snapshot (with its sha256), errors, and
                                 validity: which snapshots turn an element inside out
     mesh.npz                    the P2 mesh (contracts.mesh)
@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -42,6 +42,7 @@ from .envelope import Envelope
 from .files import atomic_savez, atomic_write_text, read_manifest_json, sha256
 from .materials import sensitivity_key
 from .mesh import TetMesh, read_mesh
+from .scene import RecordedScene
 
 SWEEP_FORMAT = 4  # what this code writes
 READ_FORMATS = (2, 3, 4)  # what it reads: format 3 lacks min_det_f_bound, 2 min_det_f_probe too
@@ -133,7 +134,7 @@ class SweepManifest(_Frozen):
     format_version: Literal[2, 3, 4] = SWEEP_FORMAT
     scene_name: str
     scene_sha256: str
-    scene: dict[str, Any]  # the validated scene (fem_offline.scene.Scene, as JSON)
+    scene: RecordedScene  # the validated scene, as solved (contracts.scene; read as recorded_scene)
     mesh: str = MESH_FILE
     mesh_sha256: str
     n_nodes: int

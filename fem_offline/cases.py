@@ -119,10 +119,7 @@ def check_sweep_for_starts(scene: Scene, mesh_path: Path, sweep: Path) -> None:
     from contracts.mesh import read_mesh
 
     manifest = folder.read_manifest(sweep)
-    theirs, ours = dict(manifest.scene), scene.model_dump(mode="json")
-    for spec in (theirs, ours):
-        spec.pop("sweep", None), spec.pop("name", None)
-    if theirs != ours:
+    if manifest.scene.model_copy(update={"sweep": scene.sweep, "name": scene.name}) != scene:
         raise ValueError(f"--sweep: {sweep} is a sweep of another scene's physics; its fields cannot start these cases")
     if not np.array_equal(read_mesh(sweep / manifest.mesh).nodes, read_mesh(mesh_path).nodes):
         raise ValueError(f"--sweep: {sweep} is on another mesh than the cases (use its mesh.npz as --mesh)")

@@ -24,10 +24,11 @@ model's basis (`Concurrency.for_model`):
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+
+from contracts.model import read_manifest
 
 CGROUP_CPU_MAX = Path("/sys/fs/cgroup/cpu.max")
 # a basis (float32, 3 n_nodes x (rank + 1)) up to this size is decoded from cache; above it, from memory. 32 MB: the
@@ -99,10 +100,10 @@ class Concurrency:
 def basis_bytes(model: Path) -> int | None:
     """The float32 basis of a model folder from its manifest (3 n_nodes x (rank + 1) x 4 bytes); None if unreadable."""
     try:
-        manifest = json.loads((Path(model) / "manifest.json").read_text())
-        return 3 * int(manifest["mesh"]["n_nodes"]) * (int(manifest["pca"]["rank"]) + 1) * 4
-    except (OSError, ValueError, KeyError, TypeError):
+        manifest = read_manifest(model)
+    except (OSError, ValueError):  # missing, unreadable or not a manifest (ModelError)
         return None
+    return 3 * manifest.mesh.n_nodes * (manifest.pca.rank + 1) * 4
 
 
 def defaults(model: Path | None = None) -> Concurrency:

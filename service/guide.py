@@ -41,10 +41,10 @@ class Guide:
     @classmethod
     def of(cls, manifest: ModelManifest) -> Guide:
         """The guide of the scene the model was trained on (the manifest holds the whole validated scene)."""
-        spec = manifest.scene.spec["guide"]
+        guide = manifest.scene.spec.guide
         unit = lambda v: np.asarray(v, dtype=np.float64) / np.linalg.norm(v)  # noqa: E731
-        return cls(np.asarray(spec["tip_mm"], dtype=np.float64), unit(spec["axis"]), unit(spec["tilt_normal"]),
-                   float(spec["patch_radius_mm"]))
+        return cls(np.asarray(guide.tip_mm, dtype=np.float64), unit(guide.axis), unit(guide.tilt_normal),
+                   float(guide.patch_radius_mm))
 
     def direction(self, angle_deg: float) -> np.ndarray:
         """Unit push direction a(beta) (contracts.guide)."""

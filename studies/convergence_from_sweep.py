@@ -24,7 +24,6 @@ import numpy as np
 
 from contracts import sweep as folder
 from studies.convergence import HARD_CASES, scaled_scene, study_scene
-from fem_offline.scene import parse_scene
 
 
 def main(argv: list[str] | None = None) -> int | None:
@@ -37,14 +36,12 @@ def main(argv: list[str] | None = None) -> int | None:
     args = ap.parse_args(argv)
     manifest = folder.read_manifest(args.sweep)
     study = scaled_scene(study_scene(args.scene, contact=True, step_mm=args.step_mm), args.scale)
-    swept = parse_scene(manifest.scene, source=str(args.sweep / "manifest.json"))
-    mine, theirs = study.model_dump(mode="json"), swept.model_dump(mode="json")
-    for data in (mine, theirs):
-        data.pop("name")
-        data["solver"].pop("max_step_mm")
-        data.pop("sweep")
-    if mine != theirs:
-        diff = sorted(k for k in mine if mine[k] != theirs.get(k))
+    # the sweep's scene with the study's name, grid and load step: the rest must be the study's
+    swept = manifest.scene.model_copy(update={
+        "name": study.name, "sweep": study.sweep,
+        "solver": manifest.scene.solver.model_copy(update={"max_step_mm": study.solver.max_step_mm})})
+    if swept != study:
+        diff = sorted(k for k in type(study).model_fields if getattr(swept, k) != getattr(study, k))
         raise SystemExit(f"{args.sweep}: not the study's scene at scale {args.scale:g} (differs in {diff})")
     args.out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(args.sweep / folder.MESH_FILE, args.out / f"mesh_{args.scale:g}.npz")

@@ -43,7 +43,7 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
     folder = read_model_folder(model)
     manifest, mesh = folder.manifest, folder.mesh
     session = onnx_session(model / "model.onnx")
-    tip = np.asarray(manifest.scene.spec["guide"]["tip_mm"])
+    tip = np.asarray(manifest.scene.spec.guide.tip_mm)
     surface = np.asarray(mesh.node_sets["prostate_surface"])
     near = np.linalg.norm(mesh.nodes[surface] - tip, axis=1) < NEAR_TIP_MM
     regions = {"markers": np.asarray(mesh.node_sets["markers"]), "prostate_surface": surface,

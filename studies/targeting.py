@@ -80,9 +80,8 @@ def solve(folder, predictor, state: np.ndarray) -> tuple[np.ndarray, str]:
     from fem_offline.fe.problem import build_problem
     from fem_offline.fe.solve import solve_case
     from fem_offline.material_cases import scaled_scene
-    from fem_offline.scene.load import parse_scene
 
-    scene = parse_scene(folder.manifest.scene.spec)
+    scene = folder.manifest.scene.spec
     tissues = tuple(folder.manifest.materials.tissues) if folder.manifest.materials is not None else ()
     problem = build_problem(scaled_scene(scene, tissues, state[2:]), folder.mesh)
     d, beta = float(state[0]), float(state[1])

@@ -166,3 +166,65 @@ def test_the_tools_import_nothing_of_the_project():
     """tools/ drives a running service from outside (HTTP, a browser): it imports no project package but itself."""
     for path in sorted((ROOT / "tools").glob("*.py")):
         assert not _driver_imports(path, _module_name(path), (*LIBRARY, "studies", "bench")), path.name
+
+
+# The scene: one typed contract (contracts/scene), read through its fields by every stage.
+SCENE_OWNER = "contracts.scene.schema"
+SCENE_READERS = (*LIBRARY, "studies", "bench")
+OTHER_SCENES = {"service.viewer", "bench.viewer"}  # there a scene is what the viewer page draws (scene.json)
+
+
+def _scene_by_key(tree: ast.AST) -> list[str]:
+    """Where a module reads a scene as a dict, a section of the schema by string key (`x.scene["guide"]`,
+    `x.spec.get("effects", {})`, `scene["tissues"]`, `raw["scene"]["mesh"]`), or types a `scene` or `spec` field as
+    a dict."""
+    from contracts.scene import Scene
+
+    def scene_like(node: ast.AST) -> bool:
+        return (isinstance(node, ast.Attribute) and node.attr in ("scene", "spec")
+                or isinstance(node, ast.Name) and node.id in ("scene", "spec")
+                or isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant)
+                and node.slice.value in ("scene", "spec"))
+
+    def section(node: ast.AST | None) -> bool:
+        return isinstance(node, ast.Constant) and node.value in Scene.model_fields
+
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript) and scene_like(node.value) and section(node.slice):
+            found.append(ast.unparse(node))
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
+              and scene_like(node.func.value) and section(node.args[0] if node.args else None)):
+            found.append(ast.unparse(node))
+        elif (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+              and node.target.id in ("scene", "spec") and "dict" in ast.unparse(node.annotation)):
+            found.append(ast.unparse(node))
+    return found
+
+
+def test_the_scene_reader_sees_the_dict_reads_it_replaced():
+    """The check finds the reads of a scene by key that training, the service and the contracts made before the
+    scene was typed (and leaves a key that is no section of the schema alone), so the next test can fail."""
+    code = ('spec = manifest.scene["label_map"]\nv = m.scene.get("solver", {})\nt = m.scene.spec["guide"]["tip_mm"]\n'
+            'g = spec.get("effects", {})\nt = scene["tissues"][name]\nx = raw["scene"]["mesh"]\n'
+            'class SceneInfo:\n    spec: dict[str, Any]\nr = scene["regions"]\n')
+    assert sorted(_scene_by_key(ast.parse(code))) == sorted([
+        "manifest.scene['label_map']", "m.scene.get('solver', {})", "m.scene.spec['guide']", "spec.get('effects', {})",
+        "scene['tissues']", "raw['scene']['mesh']", "spec: dict[str, Any]"])
+
+
+def test_the_scene_contract_is_defined_once_and_read_through_its_fields():
+    """Only contracts/scene/schema.py defines a Scene class, and no module of the library, the studies or the
+    benchmarks reads a scene by key or types one as a dict: each field is read typed, with the schema's one default."""
+    defined, by_key = [], {}
+    for package in SCENE_READERS:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            name = _module_name(path)
+            if name in OTHER_SCENES:
+                continue
+            tree = ast.parse(path.read_text())
+            defined += [name for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == "Scene"]
+            if found := _scene_by_key(tree):
+                by_key[name] = found
+    assert defined == [SCENE_OWNER]
+    assert by_key == {}

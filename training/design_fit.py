@@ -21,10 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from contracts import model as folder
-from contracts.design import DESIGN_FILE, DesignData, read_design
+from contracts.design import DesignData, read_design
 from contracts.envelope import Envelope
 from contracts.model import FitOptions, onnx_session
-from contracts.scene import recorded_scene
 
 from .export import OPSET, folded_layers
 from .material_graph import build_material_graph, reference_decode_design
@@ -145,7 +144,7 @@ def _manifest(out: Path, data: DesignData, options: FitOptions, layers, pca: Pca
     from .fit import _versions, pca_method
 
     design, m = data.design, len(data.design.tissues)
-    materials = materials_info(recorded_scene(design.scene, source=DESIGN_FILE))
+    materials = materials_info(design.scene)
     if checked is not None:
         reference = (f"fresh FE at {checked['n_points']} held-out material points x (-beta, beta) of a `fem_offline "
                      f"design --held-out` folder, every push ({checked['n_snapshots']} snapshots), on the model's mesh")
@@ -162,7 +161,7 @@ def _manifest(out: Path, data: DesignData, options: FitOptions, layers, pca: Pca
         name=Path(out).name,
         created_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         scene=folder.SceneInfo(name=design.scene_name, sha256=design.scene_sha256, spec=design.scene),
-        sweep=folder.SweepInfo(n_snapshots=len(data.inputs), nonlinear=bool(design.scene["effects"]["geometric_nonlinearity"])),
+        sweep=folder.SweepInfo(n_snapshots=len(data.inputs), nonlinear=design.scene.effects.geometric_nonlinearity),
         mesh=folder.MeshInfo(n_nodes=len(data.mesh.nodes), n_tets=len(data.mesh.tets), n_dofs=3 * len(data.mesh.nodes),
                              tissues=list(data.mesh.tissue_names)),
         fit=options,

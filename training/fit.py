@@ -23,6 +23,7 @@ import numpy as np
 
 from contracts import model as folder
 from contracts.model import PAPER_TEST_CASES, FitOptions, onnx_session
+from contracts.scene import MeshSize
 
 from .export import OPSET, build_graph, folded_layers, reference_decode
 from .material_graph import build_material_graph, reference_decode_materials
@@ -164,16 +165,18 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
     said so."""
     import json
 
-    source = sweep_manifest.source
+    source, scene = sweep_manifest.source, sweep_manifest.scene
     if source is None:
         return None
-    spec = sweep_manifest.scene["label_map"]
-    facet = spec.get("facet_distance_voxels", 0.5) if spec["mesher"] == "cgal" else None  # None: not CGAL's
+    label_map = scene.label_map
+    facet = label_map.facet_distance_voxels if label_map.mesher == "cgal" else None  # None: not CGAL's
     voxel = min(source.spacing_mm)
     data = json.loads(Path(path).read_text())
-    element = sweep_manifest.scene.get("solver", {}).get("volumetric", "pointwise")
-    row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == spec["mesher"]
-                and r["facet_distance_voxels"] == facet and r.get("mesh_mm") == sweep_manifest.scene["mesh"]
+    element = scene.solver.volumetric
+    # a row's sizes read as the scene's (a size the study's JSON predates is at its default, surface_near_tip_mm)
+    row = next((r for r in data["rows"] if abs(r["spacing_mm"] - voxel) < 1e-6 and r["mesher"] == label_map.mesher
+                and r["facet_distance_voxels"] == facet and "mesh_mm" in r
+                and MeshSize.model_validate(r["mesh_mm"]) == scene.mesh
                 and r.get("volumetric", "pointwise") == element), None)
     if row is None:
         return None

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from contracts.materials import (PARAMETER, MaterialAccuracy, MaterialInput, MaterialRegionAccuracy, MaterialsInfo,
-                                 sensitivity_key, youngs_from_shear_wave_kpa)
+                                 sensitivity_key)
+from contracts.scene import Scene
 
 CASE_GLOB = "material_*.npz"
 
@@ -43,19 +44,16 @@ def theta_rms(info: MaterialsInfo) -> np.ndarray:
     return np.array(out)
 
 
-def materials_info(scene: dict) -> MaterialsInfo | None:
-    """The manifest's material inputs from a sweep's scene (its JSON), in the scene's order; None without [materials]."""
-    spec = scene.get("materials")
-    if not spec:
+def materials_info(scene: Scene) -> MaterialsInfo | None:
+    """The manifest's material inputs from a sweep's scene, in the scene's order; None without [materials]."""
+    if not scene.materials:
         return None
     inputs = []
-    for name, m in spec.items():
-        t = scene["tissues"][name]
-        youngs = t.get("youngs_kpa") or youngs_from_shear_wave_kpa(
-            shear_wave_speed_m_s=t["shear_wave_speed_m_s"], density_kg_m3=t["density_kg_m3"], poisson=t["poisson"])
-        inputs.append(MaterialInput(tissue=name, nominal_youngs_kpa=youngs, youngs_kpa_range=tuple(m["youngs_kpa_range"]),
-                                    std_percent=m["std_percent"], poisson=t["poisson"], density_kg_m3=t["density_kg_m3"],
-                                    source=m.get("source", "")))
+    for name, m in scene.materials.items():
+        t = scene.tissues[name]
+        inputs.append(MaterialInput(tissue=name, nominal_youngs_kpa=t.youngs, youngs_kpa_range=m.youngs_kpa_range,
+                                    std_percent=m.std_percent, poisson=t.poisson, density_kg_m3=t.density_kg_m3,
+                                    source=m.source))
     return MaterialsInfo(parameter=PARAMETER, inputs=inputs)
 
 
@@ -167,10 +165,9 @@ def regraph(model: Path) -> tuple[float, float]:
     layers, pca, dtype = read_weights(old_bytes)
     new_bytes = build_material_graph(layers, pca, len(info.inputs), dtype=dtype).SerializeToString()
 
-    spec = current.manifest.scene.spec
-    sweep = spec["sweep"]
-    d = np.arange(0.0, sweep["displacement_max_mm"] + 1e-9, max(sweep["displacement_step_mm"], 1.0))
-    a = np.arange(sweep["angle_min_deg"], sweep["angle_max_deg"] + 1e-9, max(sweep["angle_step_deg"], 2.5))
+    sweep = current.manifest.scene.spec.sweep
+    d = np.arange(0.0, sweep.displacement_max_mm + 1e-9, max(sweep.displacement_step_mm, 1.0))
+    a = np.arange(sweep.angle_min_deg, sweep.angle_max_deg + 1e-9, max(sweep.angle_step_deg, 2.5))
     guides = np.array([(x, y) for x in d for y in a], dtype=np.float32)
     bounds = [np.log(np.asarray(m.youngs_kpa_range) / m.nominal_youngs_kpa) for m in info.inputs]
     thetas = [np.zeros(len(bounds)), *map(np.array, itertools.product(*bounds))]

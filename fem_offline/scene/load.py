@@ -1,30 +1,11 @@
-"""Reading scene files: TOML, `extends` chains merged table by table, validation into a ``Scene``."""
+"""Reading scene files: TOML, `extends` chains merged table by table, validation into a ``Scene`` (contracts.scene)."""
 
 from __future__ import annotations
 
 import tomllib
 from pathlib import Path
 
-from pydantic import ValidationError
-
-from fem_offline.scene.schema import Scene
-
-
-class SceneError(ValueError):
-    """A scene file that cannot be used; the message names the field."""
-
-
-def _field_path(loc: tuple) -> str:
-    return ".".join(str(p) for p in loc if p not in ("function-after",)) or "<root>"
-
-
-def parse_scene(data: dict, *, source: str = "scene") -> Scene:
-    """Validate a scene dict; raise SceneError naming each bad field."""
-    try:
-        return Scene.model_validate(data)
-    except ValidationError as exc:
-        lines = [f"{_field_path(e['loc'])}: {e['msg']}" for e in exc.errors()]
-        raise SceneError(f"{source}: " + "; ".join(lines)) from None
+from contracts.scene import Scene, SceneError, parse_scene
 
 
 def _merged(base: dict, over: dict) -> dict:

@@ -10,6 +10,7 @@ import pytest
 
 from contracts.materials import OutsideBox, ratio_point, ratio_shift_interval, sigma_ln_e, youngs_from_shear_wave_kpa
 from contracts.model import judged_by_ratios, read_manifest
+from contracts.scene import PHANTOM_TISSUES, Scene, Tissue
 
 DEFAULT = Path(__file__).resolve().parents[2] / "models" / "default"
 TISSUES = ("prostate", "rectal_wall", "adipose", "bladder")
@@ -58,20 +59,22 @@ def test_ratios_no_point_of_the_box_has_are_refused_naming_both_tissues_and_the_
     assert "3.2 x" in str(info.value) and "up to x1.6" in str(info.value) and "down to x0.5" in str(info.value)
 
 
-def _spec(**change) -> dict:
-    tissues = {t: {"youngs_kpa": 10.0, "bone": False} for t in TISSUES} | {"pubic_bone": {"youngs_kpa": 2500.0, "bone": True}}
-    return {"tissues": tissues, "effects": {"gravity": False, "fixed_bones": True}} | change
+def _scene(**effects) -> Scene:
+    """The phantom's tissues, the bones held fixed; `effects` changed without validation (fixed_bones = false is
+    refused from a user, but the judgement must hold for any scene)."""
+    scene = Scene(tissues={t: Tissue(youngs_kpa=10.0, bone=t in ("pubic_bone", "spine")) for t in PHANTOM_TISSUES})
+    return scene.model_copy(update={"effects": scene.effects.model_copy(update=effects)})
 
 
-@pytest.mark.parametrize("spec, inputs, expected", [
-    (_spec(), TISSUES, True),  # every soft tissue an input; the bone held fixed moves nothing
-    (_spec(), TISSUES[:3], False),  # the bladder at its nominal E: E x k of the others is another patient
-    (_spec(effects={"gravity": True, "fixed_bones": True}), TISSUES, False),  # a body force scales with 1/E
-    (_spec(effects={"gravity": False, "fixed_bones": False}), TISSUES, False),  # a free bone carries load
+@pytest.mark.parametrize("scene, inputs, expected", [
+    (_scene(), TISSUES, True),  # every soft tissue an input; the bones held fixed move nothing
+    (_scene(), TISSUES[:3], False),  # the bladder at its nominal E: E x k of the others is another patient
+    (_scene(gravity=True), TISSUES, False),  # a body force scales with 1/E
+    (_scene(fixed_bones=False), TISSUES, False),  # a free bone carries load
 ])
-def test_a_model_is_judged_by_ratios_only_when_only_ratios_move_it(spec, inputs, expected):
-    mesh_tissues = [*TISSUES, "pubic_bone"]
-    assert judged_by_ratios(spec, tissues=mesh_tissues, inputs=list(inputs)) is expected
+def test_a_model_is_judged_by_ratios_only_when_only_ratios_move_it(scene, inputs, expected):
+    mesh_tissues = [*TISSUES, "pubic_bone", "spine"]
+    assert judged_by_ratios(scene, tissues=mesh_tissues, inputs=list(inputs)) is expected
 
 
 def test_a_manifest_from_before_the_judgement_reads_with_it_from_its_scene(tmp_path):

@@ -7,6 +7,10 @@ import pytest
 
 from contracts import sweep as folder
 from contracts.mesh import TetMesh, write_mesh
+from contracts.scene import PHANTOM_TISSUES, Scene, Tissue
+
+# a scene of the phantom's tissues, every other field at its default
+SCENE = Scene(name="s", tissues={t: Tissue(youngs_kpa=10.0, bone=t in ("pubic_bone", "spine")) for t in PHANTOM_TISSUES})
 
 
 def _write_sweep(out, n_nodes=5, done=None):
@@ -25,7 +29,7 @@ def _write_sweep(out, n_nodes=5, done=None):
     from contracts.files import sha256
 
     manifest = folder.SweepManifest(
-        scene_name="s", scene_sha256="0" * 64, scene={"name": "s"}, mesh_sha256=sha256(out / folder.MESH_FILE),
+        scene_name="s", scene_sha256=SCENE.sha256(), scene=SCENE, mesh_sha256=sha256(out / folder.MESH_FILE),
         n_nodes=n_nodes, n_tets=1, nonlinear=True, grid=grid, envelope=grid.envelope, n_expected=4,
         n_done=len(files), snapshots=[folder.snapshot_record(out, f) for f in files])
     folder.write_manifest(out, manifest)
@@ -36,6 +40,8 @@ def test_round_trip(tmp_path):
     written = _write_sweep(tmp_path)
     sweep = folder.read_sweep(tmp_path)
     assert sweep.manifest == written
+    assert sweep.manifest.scene == SCENE and sweep.manifest.scene.sha256() == written.scene_sha256  # typed, whole
+    assert json.loads((tmp_path / folder.MANIFEST).read_text())["scene"] == SCENE.model_dump(mode="json")
     assert sweep.manifest.envelope.displacement_mm == (0.0, 2.0)
     np.testing.assert_array_equal(sweep.inputs, [[1.0, -1.0], [2.0, -1.0], [1.0, 1.0], [2.0, 1.0]])
     np.testing.assert_array_equal(sweep.displacement[:, 0, 0], [-1.0, -2.0, 1.0, 2.0])

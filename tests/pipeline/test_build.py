@@ -153,10 +153,11 @@ def test_fe_estimate_for_the_voxels_and_mesher_goes_into_the_manifest(built, tmp
     from training.fit import fit
 
     folder, model, _, _, voxel = built
-    mesher = model.scene.spec["label_map"]["mesher"]
+    scene = model.scene.spec
+    mesher = scene.label_map.mesher
     row = {"spacing_mm": voxel, "mesher": mesher, "facet_distance_voxels": 0.5 if mesher == "cgal" else None,
-           "volumetric": model.scene.spec["solver"]["volumetric"], "tets": 1000, "finest_level_tets": 32252,
-           "mesh_mm": model.scene.spec["mesh"],
+           "volumetric": scene.solver.volumetric, "tets": 1000, "finest_level_tets": 32252,
+           "mesh_mm": scene.mesh.model_dump(mode="json"),
            "regions": {"markers": {"bound_max_mm": 0.3}, "prostate_surface": {"bound_max_mm": 0.7}}}
     truth = tmp_path / "truth.json"
     truth.write_text(json.dumps({"case": "10 mm, 0 deg", "rows": [row]}))

@@ -30,20 +30,24 @@ def test_no_installed_package_reads_a_file_under_docs():
 
 
 def test_the_build_reads_the_package_copy_of_the_label_map_fe_table():
-    """BuildOptions' default estimate is the package file, and fit's row lookup finds a row in it: the default
-    phantom's 1 mm CGAL row, as a label-map sweep manifest of that voxel size, mesher and sizes would ask."""
+    """BuildOptions' default estimate is the package file, and fit's row lookup finds a row in it: its first row, as
+    a label-map sweep manifest of that voxel size, mesher, sizes and element would ask (the scene as a sweep
+    records it today, every mesh size stated, surface_near_tip_mm too, which the rows predate)."""
+    from contracts.scene import parse_scene
     from pipeline.build import BuildOptions
     from training.fit import fe_label_map_estimate
 
     path = BuildOptions().fe_estimate
     assert Path(path) == Path(str(files("pipeline") / "data" / "labelmap_fe_error.json"))
     row = json.loads(Path(path).read_text())["rows"][0]
-    label_map = {"mesher": row["mesher"]}
+    label_map = {"path": "labels.nii.gz", "labels": {"prostate": 1, "rectal_wall": 2}, "mesher": row["mesher"]}
     if row["facet_distance_voxels"] is not None:
         label_map["facet_distance_voxels"] = row["facet_distance_voxels"]
-    manifest = SimpleNamespace(source=SimpleNamespace(spacing_mm=(row["spacing_mm"],) * 3),
-                               scene={"label_map": label_map, "mesh": row.get("mesh_mm"),
-                                      "solver": {"volumetric": row.get("volumetric", "pointwise")}})
+    scene = parse_scene({"tissues": {t: {"youngs_kpa": 10.0} for t in ("prostate", "rectal_wall", "adipose")},
+                         "label_map": label_map, "mesh": row["mesh_mm"],
+                         "solver": {"volumetric": row.get("volumetric", "pointwise")}})
+    assert "surface_near_tip_mm" not in row["mesh_mm"] and "surface_near_tip_mm" in scene.model_dump()["mesh"]
+    manifest = SimpleNamespace(source=SimpleNamespace(spacing_mm=(row["spacing_mm"],) * 3), scene=scene)
     bands, text = fe_label_map_estimate(path, manifest)
     assert bands == {k: row["regions"][k]["bound_max_mm"] for k in ("markers", "prostate_surface")}
     assert "labelmap_fe_error.json" in text

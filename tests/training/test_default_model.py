@@ -29,11 +29,10 @@ def test_default_model_error_is_what_a_fresh_fe_solve_gives():
     solution equals the e_NN its manifest reports for the case."""
     from fem_offline.fe.problem import build_problem
     from fem_offline.geometry.regions import build_node_sets
-    from fem_offline.scene import parse_scene
     from fem_offline.fe.solve import solve_case
 
     folder = read_model_folder(DEFAULT)
-    scene = parse_scene(folder.manifest.scene.spec)
+    scene = folder.manifest.scene.spec
     assert scene.sha256() == folder.manifest.scene.sha256
     u, _ = solve_case(build_problem(scene, build_node_sets(folder.mesh, scene)), 1.5, -1.0)
     err = np.linalg.norm(Predictor(folder).displacement(1.5, -1.0) - u, axis=1).max()
@@ -62,9 +61,9 @@ def test_default_model_states_an_end_to_end_bound_no_smaller_than_its_parts():
 
 def test_default_model_was_built_from_the_default_scenes_physics():
     """models/default's scene states what fem_offline/scenes/default.toml states (its name may differ)."""
-    from fem_offline.scene import load_scene, parse_scene
+    from fem_offline.scene import load_scene
 
-    built = parse_scene(read_model_folder(DEFAULT).manifest.scene.spec)
+    built = read_model_folder(DEFAULT).manifest.scene.spec
     default = load_scene(DEFAULT.parents[1] / "fem_offline" / "scenes" / "default.toml")
     # [materials] (issue #34) names the stiffnesses the model takes as inputs, not the physics u is solved for: a
     # model built before it (no material inputs) still states the scene's physics

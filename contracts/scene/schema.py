@@ -1,8 +1,9 @@
 """The scene's schema: anatomy, tissues, needle guide, physical effects, the sweep grid, mesh sizes, solver.
 
-Pydantic models; unknown keys and out-of-range values are errors that name the field (load.py turns
+Pydantic models; unknown keys and out-of-range values are errors that name the field (parse.py turns
 them into ``SceneError``). Units: lengths in mm, moduli in kPa, densities in kg/m^3, angles in degrees.
-It imports nothing from the FE.
+A scene a manifest recorded is read with the context RECORDED (parse.recorded_scene): the checks on what a user
+states (anatomy, the guide tip on the lumen, the material ranges) are not run again on it.
 """
 
 from __future__ import annotations
@@ -14,13 +15,14 @@ from pathlib import Path
 from typing import Annotated, Literal, get_args
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationInfo, model_serializer, model_validator
 
 from contracts.guide import push_direction
 from contracts.materials import sigma_ln_e, youngs_from_shear_wave_kpa
 
-from fem_offline.scene.anatomy import problems as anatomy_problems
-from fem_offline.scene.anatomy import tip_problem
+from .anatomy import problems as anatomy_problems
+from .anatomy import tip_problem
+from .recorded import LATER_FIELDS, drop
 
 Vec3 = tuple[float, float, float]
 Positive = Annotated[float, Field(gt=0)]
@@ -28,6 +30,15 @@ Positive = Annotated[float, Field(gt=0)]
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+RECORDED = "recorded"  # validation context: a scene read back from a manifest, valid when it was solved
+
+
+def _user_checks(info: ValidationInfo) -> bool:
+    """Whether to judge what a user states: not for a recorded scene, so a check made stricter since it was solved
+    does not make its sweep or model unreadable."""
+    return not (info.context or {}).get(RECORDED, False)
 
 
 class Tissue(_Strict):
@@ -115,11 +126,11 @@ class Phantom(_Strict):
     spine_box_mm: tuple[Vec3, Vec3] = ((-15.0, -41.0, 8.0), (15.0, -36.0, 72.0))
 
     @model_validator(mode="after")
-    def _anatomy(self) -> Phantom:
+    def _anatomy(self, info: ValidationInfo) -> Phantom:
         """Shapes inside the block, a rectal wall around the lumen, no organ cut by another (anatomy.problems)."""
         if self.rectum_inner_radius_mm >= self.rectum_outer_radius_mm:
             raise ValueError("rectum_inner_radius_mm must be below rectum_outer_radius_mm")
-        found = anatomy_problems(self)
+        found = anatomy_problems(self) if _user_checks(info) else []
         if found:
             raise ValueError("; ".join(found))
         return self
@@ -310,6 +321,8 @@ class Scene(_Strict):
     solver: Solver = Solver()
     # Tissue stiffnesses as model inputs (the sweep then stores du/d ln E per tissue); None: no material inputs
     materials: MaterialInputs | None = None
+    # The later fields the manifest this scene was read from lacked (parse.recorded_scene); empty for any other scene
+    _absent: frozenset[tuple[str | None, str]] = PrivateAttr(frozenset())
 
     @model_validator(mode="before")
     @classmethod
@@ -329,7 +342,7 @@ class Scene(_Strict):
         return data
 
     @model_validator(mode="after")
-    def _geometry_source(self) -> Scene:
+    def _geometry_source(self, info: ValidationInfo) -> Scene:
         sources = [n for n in ("phantom", "mesh_file", "label_map") if getattr(self, n) is not None]
         if len(sources) > 1:
             raise ValueError(f"give one geometry source, not {' and '.join(sources)}")
@@ -347,10 +360,11 @@ class Scene(_Strict):
             missing = set(PHANTOM_TISSUES) - set(self.tissues)
             if missing:
                 raise ValueError(f"the phantom needs [tissues.{'], ['.join(sorted(missing))}]")
-            problem = tip_problem(self.phantom, self.guide)
+            problem = tip_problem(self.phantom, self.guide) if _user_checks(info) else None
             if problem:
                 raise ValueError(problem)
-        self._check_materials()
+        if _user_checks(info):
+            self._check_materials()
         return self
 
     def _check_materials(self) -> None:
@@ -377,23 +391,19 @@ class Scene(_Strict):
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
     def _canonical(self) -> dict:
-        data = self.model_dump(mode="json")
         # Fields added later are left out while at the value they had before they existed, so the scenes,
-        # sweeps and models made before them keep their hashes (also after a default changed).
-        for (section, key), before in _LATER_FIELDS.items():
-            parent = data if section is None else data.get(section)
-            if parent is None:  # an optional section the scene does not have (label_map)
-                continue
-            if key in parent and parent[key] == before:
-                parent.pop(key)
-        return data
+        # sweeps and models made before them keep their hashes (also after a default changed; recorded.py).
+        return drop(self.model_dump(mode="json"), LATER_FIELDS)
+
+    @model_serializer(mode="wrap")
+    def _as_recorded(self, handler):
+        """The fields; a recorded scene leaves out again the later fields its manifest lacked while they still hold
+        their value from before, so the manifest is written back as the same bytes (recorded.py)."""
+        return drop(handler(self), self._absent)
+
+    def __eq__(self, other: object) -> bool:
+        """The same fields: how a manifest spelled the scene (the later fields it lacked) is no part of it."""
+        return self.__dict__ == other.__dict__ if isinstance(other, Scene) else NotImplemented
 
 
-# (section, field) -> the value that reproduces what the scene meant before the field existed
-_LATER_FIELDS = {(None, "label_map"): None, ("guide", "snap_mm"): None, ("guide", "snap_to"): "node",
-                 ("guide", "tip_radius_mm"): 6.0, ("guide", "contact_stiffness_kpa_mm"): 3e4,
-                 ("guide", "contact_stiffness_per_mm"): None, ("guide", "contact_tol_mm"): 0.005,
-                 ("effects", "guide_contact"): False, ("label_map", "facet_distance_voxels"): 0.5,
-                 ("solver", "volumetric"): "pointwise", ("mesh", "surface_near_tip_mm"): None,
-                 (None, "materials"): None}
 PHANTOM_TISSUES = ("adipose", "rectal_wall", "prostate", "bladder", "pubic_bone", "spine")

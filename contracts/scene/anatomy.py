@@ -26,13 +26,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from fem_offline.scene import Guide, Phantom
+    from .schema import Guide, Phantom
 
 # The wall between the lumen and any tissue: one voxel of the coarsest label map the fixtures use (1 mm).
 MIN_WALL_MM = 1.0
 TIP_TOL_MM = 0.01  # the phantom's tip is exact: it must lie on the lumen cylinder to this
 # Polar x azimuthal samples of the prostate's surface, 0.8 mm apart on a 30 mm semi-axis: a sampled
-# clearance is within 0.01 mm of one sampled 16 times finer (tests/fem_offline/test_anatomy.py).
+# clearance is within 0.01 mm of one sampled 16 times finer (tests/contracts/scene/test_anatomy.py).
 SURFACE_STEPS = (121, 240)
 
 

@@ -4,11 +4,11 @@ label maps that hold each variant's anatomy, and a clear error for a phantom tha
 import numpy as np
 import pytest
 
-from fem_offline.scene import anatomy
-from fem_offline.scene import Phantom, SceneError, load_scene, parse_scene
+from contracts.scene import Phantom, SceneError, anatomy, parse_scene
+from fem_offline.scene import load_scene
 from studies.phantom_labelmap import LABELS, LUMEN, voxelise
 
-from ..conftest import SCENES
+from ...conftest import SCENES
 
 VARIANTS = ("small", "medium", "large")
 
