@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .schema import Guide, Phantom
+    from contracts.scene import Guide, Phantom
 
 # The wall between the lumen and any tissue: one voxel of the coarsest label map the fixtures use (1 mm).
 MIN_WALL_MM = 1.0
