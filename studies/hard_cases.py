@@ -12,7 +12,7 @@ mesh, once per element:
 
 - "mean_dilatation", the scene's: P2 displacement with a constant pressure and volume ratio per tet (the three-field
   u-p-J element of Simo, Taylor and Pister, condensed per element; fe/elasticity.py), and a contact penalty that
-  scales with the rectal wall's E (guide.contact_stiffness_per_mm);
+  scales with the stiffest deforming tissue's E (guide.contact_stiffness_per_mm);
 - "taylor_hood", models/default's: P2 displacement with a continuous P1 pressure per tissue (fe/mixed.py), the fixed
   penalty.
 
@@ -74,7 +74,7 @@ def box_points(box: dict[str, tuple[float, float]]) -> list[tuple[str, dict[str,
 
 def formulation(scene, element: str, contact_per_mm: float | None = None):
     """The scene with the element; Taylor-Hood with the fixed contact penalty (models/default's formulation), the
-    other elements with k = contact_per_mm x the wall's E (default: the scene's guide.contact_stiffness_per_mm)."""
+    other elements with k = contact_per_mm x the stiffest deforming tissue's E (default: the scene's guide.contact_stiffness_per_mm)."""
     per_mm = contact_per_mm if contact_per_mm is not None else scene.guide.contact_stiffness_per_mm
     guide = scene.guide.model_copy(update={"contact_stiffness_per_mm": None if element == "taylor_hood" else per_mm})
     return scene.model_copy(update={"solver": scene.solver.model_copy(update={"volumetric": element}), "guide": guide})

@@ -205,9 +205,9 @@ class Guide(_Strict):
     # effects.guide_contact (contact.py): the rigid rounded tip, a sphere touching the wall at the tip
     tip_radius_mm: Annotated[float, Field(gt=0, le=50)] = 6.0
     contact_stiffness_kpa_mm: Annotated[float, Field(gt=0, le=1e8)] = 3e4  # augmented-Lagrangian penalty k
-    # When set, k = contact_stiffness_per_mm x the rectal wall's E instead (kPa/mm): the penalty scales with the
-    # tissue it touches, so every E x s (k x s with it) gives the same u and the sensitivities sum to zero
-    # (fe/sensitivity.py). None: the fixed contact_stiffness_kpa_mm.
+    # When set, k = contact_stiffness_per_mm x the stiffest deforming tissue's E instead (kPa/mm): the penalty scales
+    # with the tissues, so every E x s (k x s with it) gives the same u and the sensitivities sum to zero
+    # (fe/sensitivity.py); fe/contact.penalty says why the stiffest. None: the fixed contact_stiffness_kpa_mm.
     contact_stiffness_per_mm: Annotated[float, Field(gt=0, le=1e6)] | None = None
     contact_tol_mm: Annotated[float, Field(gt=0, le=1)] = 0.005  # largest penetration left in a solution
 

@@ -31,8 +31,8 @@ Between Newton
 solves at one guide position the multipliers are updated, lam <- t (Uzawa, continuation.py), until
 the deepest penetration is below guide.contact_tol_mm; the next step starts from the last
 equilibrium's pressures. The penalty
-k = guide.contact_stiffness_kpa_mm (or contact_stiffness_per_mm x the wall's E, so that it scales with the tissue
-it touches) sets how fast that converges, not the answer. Tiny phantom,
+k = guide.contact_stiffness_kpa_mm (or contact_stiffness_per_mm x the stiffest deforming tissue's E, so that it
+scales with the tissues) sets how fast that converges, not the answer. Tiny phantom,
 10 mm at beta = 10 deg, 0.5 mm steps: k = 1e4 needs 23 updates (98 s), 3e4 one (70 s), 1e5 none
 but 73 factorisations (85 s), 1e6 none (205 s); the fields agree to 0.014 mm. Default 3e4.
 Lengths in mm, pressures in kPa, energies in mJ (kPa mm^3).
@@ -113,19 +113,26 @@ def centre(surface: Surface, guide: Guide, displacement_mm: float, angle_deg: fl
     return surface.rest_centre + displacement_mm * guide_mod.direction(guide, angle_deg)
 
 
-def penalty(guide: Guide, wall_youngs_kpa: float) -> float:
-    """The penalty k (kPa/mm): guide.contact_stiffness_per_mm x the wall's E when set, else contact_stiffness_kpa_mm."""
+def penalty(guide: Guide, stiffest_youngs_kpa: float) -> float:
+    """The penalty k (kPa/mm): guide.contact_stiffness_per_mm x the stiffest deforming tissue's E when set, else
+    contact_stiffness_kpa_mm.
+
+    Why the stiffest and not the wall the tip touches: the pressure under the tip is what the whole stack behind the
+    wall resists, and the updates converge at a rate set by k against that stiffness (module docstring). A wall 10x
+    softer than the gland behind it made k 10x softer with it, and the updates stopped converging before the largest
+    push (docs/hard_cases.md). Any E that scales with every tissue keeps k x s for E x s, so u still moves with the
+    ratios only."""
     if guide.contact_stiffness_per_mm is None:
         return guide.contact_stiffness_kpa_mm
-    return guide.contact_stiffness_per_mm * wall_youngs_kpa
+    return guide.contact_stiffness_per_mm * stiffest_youngs_kpa
 
 
 def build_surface(mesh: TetMesh, skfem_mesh, tets: np.ndarray, active: np.ndarray, guide: Guide,
-                  wall_youngs_kpa: float) -> Surface:
+                  stiffest_youngs_kpa: float) -> Surface:
     """The lumen faces within reach of the tip (2 R + 30 mm of c_0: d_max <= 30 mm, scene.Sweep).
 
     tets: (n_tets, 10) element nodes in scikit-fem's local order; active: (n_tets,) bool, the
-    assembled tets; wall_youngs_kpa: the rectal wall's E, which a scaled penalty follows (`penalty`).
+    assembled tets; stiffest_youngs_kpa: the stiffest deforming tissue's E, which a scaled penalty follows (`penalty`).
     """
     corners = np.sort(lumen_faces(mesh)[:, :3], axis=1)
     if corners.size == 0:
@@ -138,7 +145,7 @@ def build_surface(mesh: TetMesh, skfem_mesh, tets: np.ndarray, active: np.ndarra
     reach = 2 * guide.tip_radius_mm + 30.0
     near = (np.linalg.norm(skfem_mesh.p[:, skfem_mesh.facets[:, ids]].T - c0, axis=2) < reach).any(axis=1)
     return facet_surface(skfem_mesh, ids[near], tets, active, rest_centre=c0, radius_mm=guide.tip_radius_mm,
-                         stiffness=penalty(guide, wall_youngs_kpa), tol_mm=guide.contact_tol_mm)
+                         stiffness=penalty(guide, stiffest_youngs_kpa), tol_mm=guide.contact_tol_mm)
 
 
 def facet_surface(skfem_mesh, facets: np.ndarray, tets: np.ndarray, active: np.ndarray, *, rest_centre: np.ndarray,

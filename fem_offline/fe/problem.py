@@ -112,8 +112,8 @@ def build_problem(scene: Scene, mesh: TetMesh) -> Problem:
     pattern = build_pattern(tets[active], len(mesh.nodes), np.flatnonzero(~constrained))
     surface = None
     if scene.effects.guide_contact:
-        surface = ct.build_surface(mesh, basis.mesh, tets, active, scene.guide,
-                                   wall_youngs_kpa=scene.tissues["rectal_wall"].youngs if "rectal_wall" in scene.tissues else 0.0)
+        deforming = [t.youngs for t in scene.tissues.values() if not (t.bone and scene.effects.fixed_bones)]
+        surface = ct.build_surface(mesh, basis.mesh, tets, active, scene.guide, stiffest_youngs_kpa=max(deforming))
     body = None
     if scene.effects.gravity:
         N = np.stack([basis.basis[a][0].value for a in range(10)])[:, active]  # (10, n_active, n_qp)
