@@ -72,12 +72,14 @@ def probe_cost(problem, lin_problem, modes, u: np.ndarray, scene) -> str:
     c4, _ = timed(lambda: [min_det_f(lin_problem, modes, d, b) for b in scene.sweep.angles_deg])
     c11, _ = timed(lambda: [min_det_f(lin_probed, modes, d, b) for b in scene.sweep.angles_deg])
     return (f"det F probe ({points_per_tet(PROBE_INTORDER)} points per tet, recorded with every snapshot): basis "
-            f"{t_basis:.2f} s once per process; per nonlinear snapshot {1e3 * t11:.1f} ms (4 points: {1e3 * t4:.1f} ms); "
-            f"per linear snapshot by det F's cubic {1e3 * c11 / n_cases:.2f} ms (4 points: {1e3 * c4 / n_cases:.2f} ms)")
+            f"{t_basis:.2f} s once per process; per nonlinear snapshot {1e3 * t11:.1f} ms (4 points: {1e3 * t4:.1f} "
+            f"ms); per linear snapshot by det F's cubic {1e3 * c11 / n_cases:.2f} ms (4 points: "
+            f"{1e3 * c4 / n_cases:.2f} ms)")
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m bench fem", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m bench fem", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/grid_study_base.toml"))
     ap.add_argument("--steps", type=int, default=12, help="nonlinear load steps timed on the beta = 10 deg path")
     ap.add_argument("--sweep", type=Path, help="a finished sweep folder to read the measured sweep time from")
@@ -93,7 +95,8 @@ def main(argv: list[str] | None = None) -> int | None:
     n_cases = len(scene.sweep.angles_deg) * len(scene.sweep.displacements_mm)
     large = problem.free.size >= AMG_MIN_DOFS  # AMG-CG, not PARDISO; minutes per solve
     say(f"scene {scene.name}: {len(mesh.tets)} tets, {len(mesh.nodes)} nodes, {3 * len(mesh.nodes)} DOFs "
-          f"({problem.free.size} free); {'mesh read' if args.mesh else 'gmsh'} {t_mesh:.1f} s, preparation {t_prep:.1f} s")
+          f"({problem.free.size} free); {'mesh read' if args.mesh else 'gmsh'} {t_mesh:.1f} s, preparation "
+          f"{t_prep:.1f} s")
 
     t_einsum, _ = timed(lambda: el.linear_stiffness(problem.G, problem.W, problem.mu, problem.lam), repeat=3)
     skfem = "skipped (too large)" if large else f"{skfem_assembly_seconds(problem):.2f} s"
@@ -111,8 +114,9 @@ def main(argv: list[str] | None = None) -> int | None:
     secs = [s.seconds for _, _, s in steps]
     its = [s.iterations for _, _, s in steps]
     per = median(secs)
-    say(f"nonlinear: median {per:.2f} s per snapshot (mean {np.mean(secs):.2f}), Newton iterations median {median(its)} "
-          f"(max {max(its)}), min det F {steps[-1][2].min_det_f:.3f} at {steps[-1][0]} mm, beta 10 deg, first {len(steps)} steps")
+    say(f"nonlinear: median {per:.2f} s per snapshot (mean {np.mean(secs):.2f}), Newton iterations median "
+          f"{median(its)} (max {max(its)}), min det F {steps[-1][2].min_det_f:.3f} at {steps[-1][0]} mm, beta 10 deg, "
+          f"first {len(steps)} steps")
     say(probe_cost(problem, lin_problem, modes, steps[-1][1].ravel(), scene))
     say(f"projected nonlinear sweep: {n_cases} x {np.mean(secs):.2f} s / {args.workers} workers = "
           f"{n_cases * np.mean(secs) / args.workers / 60:.1f} min")
@@ -122,9 +126,10 @@ def main(argv: list[str] | None = None) -> int | None:
     if args.sweep:
         m = json.loads((args.sweep / "manifest.json").read_text())
         rows = m["snapshots"]
-        say(f"measured sweep {args.sweep}: {m['n_done']}/{m['n_expected']} snapshots in {m['wall_seconds_this_run'] / 60:.1f} min "
-              f"wall; per snapshot median {median(r['seconds'] for r in rows):.2f} s, Newton iterations median "
-              f"{median(r['newton_iterations'] for r in rows)} max {max(r['newton_iterations'] for r in rows)}; "
-              f"min det F {min(r['min_det_f'] for r in rows):.3f}; failures {len(m['errors'])}")
+        say(f"measured sweep {args.sweep}: {m['n_done']}/{m['n_expected']} snapshots in "
+              f"{m['wall_seconds_this_run'] / 60:.1f} min wall; per snapshot median "
+              f"{median(r['seconds'] for r in rows):.2f} s, Newton iterations median "
+              f"{median(r['newton_iterations'] for r in rows)} max {max(r['newton_iterations'] for r in rows)}; min "
+              f"det F {min(r['min_det_f'] for r in rows):.3f}; failures {len(m['errors'])}")
     print(f"wrote {results.write('bench_fem', {'lines': say.lines}, publish=args.publish)}")
     return 0

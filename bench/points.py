@@ -93,7 +93,8 @@ def over_http(url: str, bodies: dict[str, bytes], repeat: int) -> tuple[dict[str
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m bench points", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m bench points", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     ap.add_argument("--points", type=int, default=10_000)
     ap.add_argument("--repeat", type=int, default=5)

@@ -14,7 +14,7 @@ that the service's processes (user and system, from /proc) and the clients spent
 between served and in-process figures is accounted for (bench/service_targets.py's cpu_rows). With a 312k-node
 JSON load it polls /healthz from another process (the event loop must stay free). Prints the tables and the issue #35
 targets; writes everything, with the machine it ran on, through studies.results.
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -82,7 +82,8 @@ def health_poller(url: str):
     """GET /healthz every 5 ms from another process (on this one's cores) for the block; the latencies (ms) are in
     the yielded list once the block ends."""
     out: list[float] = []
-    proc = subprocess.Popen([sys.executable, "-c", POLLER, url], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", POLLER, url], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True)
     try:
         proc.stdout.readline()  # started
         yield out
@@ -312,8 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     data["targets"], data["cpu"], data["readme_rows"] = targets(data), cpu_rows(data), readme_rows(data)
     print()
     for c in data["cpu"]:
-        print(f"{c['cores']} core(s), the large model batched, CPU ms a request: decode alone {c['decode_ms']}, service "
-              f"{c['service_user_ms']} user + {c['service_sys_ms']} sys, clients {c['client_ms']}"
+        print(f"{c['cores']} core(s), the large model batched, CPU ms a request: decode alone {c['decode_ms']}, "
+              f"service {c['service_user_ms']} user + {c['service_sys_ms']} sys, clients {c['client_ms']}"
               f"{' (on the same cores)' if c['clients_share_cores'] else ''}; bound {c['bound_rps']:.0f} req/s, "
               f"served {c['served_rps']:.0f} ({c['busy']:.0%} busy)")
     for t in data["targets"]:

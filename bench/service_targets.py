@@ -54,8 +54,8 @@ def targets(data: dict) -> list[dict]:
                            on1["p99_ms"] <= off1["p99_ms"]))
         lone = next((p for p in small["in_process"] if p["cores"] == n and "decode_lone_p99_ms" in p), None)
         floor = f" (the decode alone, in process, 1 ms apart: p99 {lone['decode_lone_p99_ms']:.2f} ms)" if lone else ""
-        out.append(_target(f"{small['n_nodes']} nodes, 1 client, full binary, defaults, {n} cores: p99 <= 1.5 ms{floor}",
-                           round(on1["p99_ms"], 2), on1["p99_ms"] <= 1.5))
+        out.append(_target(f"{small['n_nodes']} nodes, 1 client, full binary, defaults, {n} cores: p99 <= 1.5 ms"
+                           f"{floor}", round(on1["p99_ms"], 2), on1["p99_ms"] <= 1.5))
     markers = _row(small, n, "on", "markers binary 1")
     if markers:
         out.append(_target(f"markers, 1 client, defaults, {n} cores: p99 <= 1 ms", round(markers["p99_ms"], 2),
@@ -88,7 +88,8 @@ def cpu_rows(data: dict) -> list[dict]:
         on_cores = service + (clients if row.get("clients_share_cores") else 0.0)
         bound = 1e3 * p["cores"] / on_cores
         out.append({"cores": p["cores"], "decode_ms": round(1e3 * p["cores"] / p["decode_capacity_rps"], 2),
-                    "service_user_ms": round(row["service_user_ms"], 2), "service_sys_ms": round(row["service_sys_ms"], 2),
+                    "service_user_ms": round(row["service_user_ms"], 2),
+                    "service_sys_ms": round(row["service_sys_ms"], 2),
                     "client_ms": round(clients, 2), "clients_share_cores": bool(row.get("clients_share_cores")),
                     "bound_rps": round(bound, 1), "served_rps": round(row["throughput_rps"], 1),
                     "busy": round(row["throughput_rps"] / bound, 2),
@@ -99,7 +100,8 @@ def cpu_rows(data: dict) -> list[dict]:
 def readme_rows(data: dict) -> list[dict]:
     small, large = _models(data)
     n = max(r["cores"] for r in large["rows"])
-    picks = [(small, "on", "markers binary 1", f"default model ({small['n_nodes']:,} nodes), markers, binary, 1 client"),
+    picks = [(small, "on", "markers binary 1",
+              f"default model ({small['n_nodes']:,} nodes), markers, binary, 1 client"),
              (small, "on", "full binary 1", "default model, full mesh, binary, 1 client"),
              (small, "on", "full binary 8", "default model, full mesh, binary, 8 clients"),
              (large, "on", "full binary 8", f"{large['n_nodes']:,} nodes, full mesh, binary, 8 clients, batching on"),
@@ -109,6 +111,6 @@ def readme_rows(data: dict) -> list[dict]:
     for model, config, scenario, what in picks:
         r = _row(model, n, config, scenario) if config else _best_off(model, n, scenario)
         if r:
-            rows.append({"what": f"{what} ({n} cores)", "p50_ms": round(r["p50_ms"], 2), "p99_ms": round(r["p99_ms"], 2),
-                         "req_s": round(r["throughput_rps"], 1)})
+            rows.append({"what": f"{what} ({n} cores)", "p50_ms": round(r["p50_ms"], 2),
+                         "p99_ms": round(r["p99_ms"], 2), "req_s": round(r["throughput_rps"], 1)})
     return rows

@@ -17,7 +17,7 @@ lumen points lie inside the bounding box in no tet. Slow clients trickle their r
 replies slowly, or go away halfway (before the body, or before reading the reply), and some open a connection and
 send nothing. A poller times GET /healthz all along. The service's resident memory and open file descriptors are read from its process
 (found by its listening port). Everything stops by itself: the duration is capped and every socket has a timeout.
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -176,7 +176,8 @@ def _slow_exchange(s: socket.socket, raw: bytes, fault: str, stop: threading.Eve
         stop.wait(rng.uniform(2, 8))
         return "idle, then left"
     if fault == "oversize":  # announce a body over any sane limit: the service must refuse it unread
-        s.sendall(b"POST /predict HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 1000000000\r\n\r\n")
+        s.sendall(b"POST /predict HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: "
+                  b"1000000000\r\n\r\n")
         return _status(s.recv(4096))
     end = len(raw) // 2 if fault == "leave-while-sending" else len(raw)
     for i in range(0, end, SLOW_CHUNK_BYTES):
@@ -262,8 +263,9 @@ def _traffic(host: str, port: int, mixes: list, slow_clients: int, auth: dict, s
     tally, stop = Tally(), threading.Event()
     t_start = time.perf_counter()
     threads = [threading.Thread(target=client, args=(host, port, mix, tally, stop, auth), daemon=True) for mix in mixes]
-    threads += [threading.Thread(target=slow_client, args=(host, port, mixes[i % len(mixes)], tally, stop, auth, seed + i),
-                                 daemon=True) for i in range(slow_clients)]
+    threads += [threading.Thread(target=slow_client, daemon=True,
+                                 args=(host, port, mixes[i % len(mixes)], tally, stop, auth, seed + i))
+                for i in range(slow_clients)]
     threads.append(threading.Thread(target=health_poller, args=(host, port, tally, stop, t_start), daemon=True))
     for t in threads:
         t.start()
@@ -292,9 +294,11 @@ def _settle(process, fds_target: int | None = None, wait_s: float = 30.0) -> tup
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m bench soak", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m bench soak", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--url", default="http://127.0.0.1:8000")
-    ap.add_argument("--duration", type=float, default=600.0, help=f"seconds after the warm-up (at most {MAX_DURATION_S:.0f})")
+    ap.add_argument("--duration", type=float, default=600.0,
+                    help=f"seconds after the warm-up (at most {MAX_DURATION_S:.0f})")
     ap.add_argument("--warmup", type=float, default=20.0, help="seconds of the same traffic before the start figures")
     ap.add_argument("--clients", type=int, default=8, help="closed-loop clients (saturation)")
     ap.add_argument("--slow-clients", type=int, default=20)

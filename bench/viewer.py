@@ -16,7 +16,7 @@ Starts `python -m service` on a loopback port, opens /viewer and prints the page
 With `--trace FILE`, the paced drag runs under a chromium trace (Playwright's start_tracing) written
 to FILE, and the WebGL commands the GPU process spent longest on are printed (where a render stall
 sits).
-"""
+"""  # noqa: E501 -- the first line is the command's summary in --list and its --help description
 
 from __future__ import annotations
 
@@ -40,8 +40,10 @@ from tools.loadtest import local_service
 FETCH_ROUNDS = """async ([ways, n]) => { const out = ways.map(() => []);
   for (let i = 0; i < n; i++) for (const [j, bodies] of ways.entries()) {
     const t = performance.now();
-    await Promise.all(bodies.map((b) => fetch('/predict', { method: 'POST', body: JSON.stringify({ ...b, angle_deg: i % 7 }),
-      headers: { 'content-type': 'application/json', accept: 'application/octet-stream' } }).then((r) => r.arrayBuffer())));
+    await Promise.all(bodies.map((b) => fetch('/predict', {
+      method: 'POST', body: JSON.stringify({ ...b, angle_deg: i % 7 }),
+      headers: { 'content-type': 'application/json', accept: 'application/octet-stream' },
+    }).then((r) => r.arrayBuffer())));
     out[j].push(performance.now() - t);
   }
   return out; }"""
@@ -63,7 +65,8 @@ def _stalls(frames, key: str = "frameMs", factor: float = 10.0) -> str:
 
 
 # Resource Timing of every /predict request since the last call: (sent, first byte, last byte) in ms from its start.
-PREDICT_TIMINGS = """() => { const out = performance.getEntriesByType('resource').filter((e) => e.name.endsWith('/predict'))
+PREDICT_TIMINGS = """() => {
+  const out = performance.getEntriesByType('resource').filter((e) => e.name.endsWith('/predict'))
   .map((e) => [e.requestStart - e.startTime, e.responseStart - e.startTime, e.responseEnd - e.startTime]);
   performance.clearResourceTimings(); return out; }"""
 
@@ -104,7 +107,8 @@ def _slow_gl_commands(path: Path, top: int = 6) -> list[str]:
         elif key in began:
             took[e["name"]].append((e["ts"] - began.pop(key)) / 1000)
     commands = {name: np.asarray(ms) for name, ms in took.items() if name.startswith("k")}
-    return [f"{name}: {len(ms)} calls, p50 {np.median(ms):.2f} ms, max {ms.max():.0f} ms, {ms.sum() / 1000:.1f} s in all"
+    return [f"{name}: {len(ms)} calls, p50 {np.median(ms):.2f} ms, max {ms.max():.0f} ms, "
+            f"{ms.sum() / 1000:.1f} s in all"
             for name, ms in sorted(commands.items(), key=lambda kv: -kv[1].max())[:top]]
 
 
@@ -137,11 +141,13 @@ def main(argv: list[str] | None = None) -> int | None:
     ap.add_argument("--interval-ms", type=float, default=1000 / 60, help="paced drag: time between inputs")
     ap.add_argument("--rounds", type=int, default=50, help="fetch-only rounds")
     ap.add_argument("--antialias", choices=("auto", "on", "off"), default="auto",
-                    help="multisampling: the page's choice (off on a software renderer), or forced (/viewer?antialias=1 or 0)")
+                    help="multisampling: the page's choice (off on a software renderer), or forced "
+                         "(/viewer?antialias=1 or 0)")
     ap.add_argument("--scale", type=float,
-                    help="resolution of a drag's frames (/viewer?scale=): default the page's choice (0.5 on a software renderer, "
-                         "then a still frame at full resolution); 1 keeps full resolution")
-    ap.add_argument("--trace", type=Path, help="write a chromium trace of the paced drag here and print its slowest GL commands")
+                    help="resolution of a drag's frames (/viewer?scale=): default the page's choice (0.5 on a software "
+                         "renderer, then a still frame at full resolution); 1 keeps full resolution")
+    ap.add_argument("--trace", type=Path,
+                    help="write a chromium trace of the paced drag here and print its slowest GL commands")
     results.add_publish_flag(ap)
     args = ap.parse_args(argv)
     say = Report()
@@ -162,7 +168,8 @@ def main(argv: list[str] | None = None) -> int | None:
         page.click("#clear-targets")
         if args.trace:
             browser.start_tracing(page=page, path=str(args.trace), categories=TRACE_CATEGORIES)
-        paced = paced_drag(page, "displacement", np.round(np.linspace(0.0, hi, args.moves), 3), interval_ms=args.interval_ms)
+        paced = paced_drag(page, "displacement", np.round(np.linspace(0.0, hi, args.moves), 3),
+                           interval_ms=args.interval_ms)
         if args.trace:
             browser.stop_tracing()
         frames = paced["frames"]

@@ -75,7 +75,8 @@ def main(argv: list[str] | None = None) -> int | None:
     with local_service("--model", str(args.model)) as url:
         say(f"{args.model}: GPU-process CPU per frame over {args.frames} frames; slider to frame over a "
               f"{args.moves}-move stepwise drag")
-        say("| WebGL | multisampling | GPU process CPU per frame | slider to frame p50 / p99 / max | renders > 200 ms |")
+        say("| WebGL | multisampling | GPU process CPU per frame | slider to frame p50 / p99 / max "
+            "| renders > 200 ms |")
         say("|---|---|---|---|---|")
         for flags in (SWIFTSHADER_FLAGS, LLVMPIPE_FLAGS):
             for antialias in (1, 0):

@@ -68,7 +68,8 @@ def read_manifest_json(path: Path, model: type[BaseModel], *, version: int | tup
     found = data.get("format_version", "unversioned") if isinstance(data, dict) else "unversioned"
     versions = version if isinstance(version, tuple) else (version,)
     if found not in versions:
-        raise error(f"{path.parent}: {kind} format {found!r}, this code reads {' and '.join(map(str, versions))}; {stale}")
+        raise error(f"{path.parent}: {kind} format {found!r}, "
+                    f"this code reads {' and '.join(map(str, versions))}; {stale}")
     try:
         return model.model_validate(data)
     except ValidationError as exc:

@@ -204,6 +204,7 @@ def interpolation_matrix(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray
     outside = np.flatnonzero(tet < 0)
     if len(outside):
         raise ValueError(f"{len(outside)} of {len(points)} points are outside the mesh (first: points[{outside[0]}] = "
-                         f"{np.asarray(points)[outside[0]].tolist()}); pass nearest=True to clip them to the nearest tet")
+                         f"{np.asarray(points)[outside[0]].tolist()}); "
+                         "pass nearest=True to clip them to the nearest tet")
     rows = np.repeat(np.arange(len(points)), 10)
     return sp.csr_matrix((p2_weights(bary).ravel(), (rows, tets[tet].ravel())), shape=(len(points), len(nodes)))

@@ -78,7 +78,8 @@ def ratio_shift_interval(theta: Sequence[float], lo: Sequence[float], hi: Sequen
     return max(t - h for t, h in zip(theta, hi)), min(t - l for t, l in zip(theta, lo))
 
 
-def ratio_point(theta: Sequence[float], lo: Sequence[float], hi: Sequence[float], tissues: Sequence[str]) -> list[float]:
+def ratio_point(theta: Sequence[float], lo: Sequence[float], hi: Sequence[float],
+                tissues: Sequence[str]) -> list[float]:
     """theta - c*: the box's point with theta's ratios nearest the nominal (c* = mean theta clipped to the shifts
     that stay in the box); OutsideBox naming the tissue pair whose ratio the box cannot hold.
 

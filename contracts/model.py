@@ -286,7 +286,8 @@ def onnx_session(model: bytes | str | Path, *, threads: int = 1):
     # 8 clients: 5.8 to 6.5 ms of server CPU a request, 3.8 to 4.2 without), and a single call is no
     # slower without it (312k, 2 threads, batch 1 and 8: within the run-to-run spread).
     so.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    return ort.InferenceSession(model if isinstance(model, bytes) else str(model), so, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(model if isinstance(model, bytes) else str(model), so,
+                                providers=["CPUExecutionProvider"])
 
 
 MATERIAL_INPUTS = frozenset({"materials", "materials_std"})

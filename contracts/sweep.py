@@ -24,8 +24,8 @@ counts a snapshot as inverted when any value is <= 0, and training reads `valid_
 
 Formats: 4 records min_det_f_bound; 3 (still read) did not, 2 (still read) lacked min_det_f_probe too.
 A folder of an older format resumed by a sweep becomes format 4 with its old snapshots judged at the
-points they recorded (`validity.n_unprobed` and `n_unbounded` count them). Folders written before the check have no `validity` at all:
-`sweep_validity` derives it from a nonlinear folder's records (the solver measured them) and refuses
+points they recorded (`validity.n_unprobed` and `n_unbounded` count them). Folders written before the check have no
+`validity` at all: `sweep_validity` derives it from a nonlinear folder's records (the solver measured them) and refuses
 a linear one (its records say 1.0 without having measured).
 """
 
@@ -126,7 +126,8 @@ class Validity(_Frozen):
     inverted: list[str] = []  # snapshot files with min_det_f, min_det_f_probe or min_det_f_bound <= 0, grid order
     first_inverted_mm: list[float | None]  # per grid angle (grid.angles_deg order); None: none inverted
     valid_up_to_mm: float  # the largest grid displacement up to which every angle's snapshots are valid (0: none)
-    n_unprobed: int | None = None  # snapshots without min_det_f_probe, judged at the solver's points only; None: format 2
+    # snapshots without min_det_f_probe, judged at the solver's points only; None: format 2
+    n_unprobed: int | None = None
     n_unbounded: int | None = None  # snapshots without min_det_f_bound, judged at their points only; None: format <= 3
 
 
@@ -244,7 +245,8 @@ class Sweep:
     mesh: TetMesh
     inputs: np.ndarray  # (n, 2): displacement_mm, angle_deg
     displacement: np.ndarray  # (n, n_nodes, 3) mm, float64
-    sensitivity: dict[str, np.ndarray] | None = None  # tissue -> S_i (n, n_nodes, 3) mm per unit ln E; None: no materials
+    # tissue -> S_i (n, n_nodes, 3) mm per unit ln E; None: no materials
+    sensitivity: dict[str, np.ndarray] | None = None
 
 
 def read_sweep(folder: str | Path) -> Sweep:

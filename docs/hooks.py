@@ -1,5 +1,5 @@
-"""MkDocs hook: render `{{ result NAME }}`, `{{ accuracy }}`, `{{ speed }}`, `{{ material_check }}`, `{{ service_targets }}`
-and `{{ changelog }}` in the pages.
+"""MkDocs hook: render `{{ result NAME }}`, `{{ accuracy }}`, `{{ speed }}`, `{{ material_check }}`,
+`{{ service_targets }}` and `{{ changelog }}` in the pages.
 
 Each result block comes from docs/results/NAME.json through studies.pages, with its provenance line and a
 warning when the code it describes changed after the commit that measured it.

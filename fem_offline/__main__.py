@@ -1,4 +1,5 @@
-"""Command line: `python -m fem_offline solve|sweep|design|cases|material-cases|mesh ...`; bad input gets one line, exit code 2."""
+"""Command line: `python -m fem_offline solve|sweep|design|cases|material-cases|mesh ...`; bad input gets one line,
+exit code 2."""
 
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ def _parser() -> argparse.ArgumentParser:
     w = sub.add_parser("sweep", help="solve the scene's whole grid (resumable)")
     w.add_argument("--scene", required=True, type=Path)
     w.add_argument("--out", required=True, type=Path, help="output folder")
-    w.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one path each (default 2)")
+    w.add_argument("--workers", type=number("--workers", int, minimum=1), default=2,
+                   help="local processes, one path each (default 2)")
     w.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
 
     g = sub.add_parser("design", help="paths at space-filling points in (beta, stiffness ratios) over the scene's "
@@ -38,26 +40,33 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--scene", required=True, type=Path, help="a scene with [materials] (the box)")
     g.add_argument("--out", required=True, type=Path, help="output folder (design.json, one sweep folder per point)")
     g.add_argument("--n", type=number("--n", int, minimum=1), default=64, help="number of points (default 64)")
-    g.add_argument("--seed", type=number("--seed", int), default=0, help="seed of the scrambled Sobol sequence (default 0)")
-    g.add_argument("--mesh", type=Path, help="solve on this mesh (.npz, e.g. models/default/mesh.npz; default: mesh the scene)")
+    g.add_argument("--seed", type=number("--seed", int), default=0,
+                   help="seed of the scrambled Sobol sequence (default 0)")
+    g.add_argument("--mesh", type=Path,
+                   help="solve on this mesh (.npz, e.g. models/default/mesh.npz; default: mesh the scene)")
     g.add_argument("--held-out", action="store_true", help="the box's corners first, then Sobol points, all at the "
                    "largest angle and without sensitivities: a set to check a model against")
     g.add_argument("--sensitivities", action=argparse.BooleanOptionalAction, default=None,
                    help="store S_i = du/d ln E_i at every snapshot (default: yes, no with --held-out)")
     g.add_argument("--sensitivity-every", type=number("--sensitivity-every", int, minimum=1), default=4,
                    help="S_i at every this-many-th displacement of a path (default 4: every mm at 0.25 mm steps)")
-    g.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one path each (default 2)")
+    g.add_argument("--workers", type=number("--workers", int, minimum=1), default=2,
+                   help="local processes, one path each (default 2)")
     g.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
 
-    c = sub.add_parser("cases", help="solve random off-grid cases inside the sweep's envelope (held-out set; resumable)")
+    c = sub.add_parser("cases",
+                       help="solve random off-grid cases inside the sweep's envelope (held-out set; resumable)")
     c.add_argument("--scene", required=True, type=Path)
     c.add_argument("--out", required=True, type=Path, help="output folder (offgrid_NNN.npz + mesh.npz)")
     c.add_argument("--n", type=number("--n", int, minimum=1), default=24, help="number of cases (default 24)")
     c.add_argument("--seed", type=number("--seed", int), default=0, help="random seed of the draw (default 0)")
-    c.add_argument("--mesh", type=Path, help="the sweep's mesh.npz, so the cases share its nodes (default: mesh the scene)")
-    c.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes, one case each (default 2)")
-    c.add_argument("--sweep", type=Path, help="a finished sweep of the same scene on the same mesh: start each case from its "
-                   "fields around it instead of load-stepping from rest (same equilibrium; default: from rest)")
+    c.add_argument("--mesh", type=Path,
+                   help="the sweep's mesh.npz, so the cases share its nodes (default: mesh the scene)")
+    c.add_argument("--workers", type=number("--workers", int, minimum=1), default=2,
+                   help="local processes, one case each (default 2)")
+    c.add_argument("--sweep", type=Path, help="a finished sweep of the same scene on the same mesh: start each case "
+                   "from its fields around it instead of load-stepping from rest (same equilibrium; default: "
+                   "from rest)")
 
     k = sub.add_parser("material-cases", help="fresh solves at the ends of the scene's material ranges, to check the "
                        "first-order material model (training material-check; resumable)")
@@ -67,8 +76,8 @@ def _parser() -> argparse.ArgumentParser:
     k.add_argument("--case", action="append", help="guide position D/A in mm/deg (repeatable; default: the largest "
                    "push at 0 deg and at the largest angle)")
     k.add_argument("--workers", type=number("--workers", int, minimum=1), default=2, help="local processes (default 2)")
-    k.add_argument("--sweep", type=Path, help="the scene's material sweep on the same mesh: its snapshots give the nominal "
-                   "state and sensitivities at each --case (a grid point), instead of solving them again")
+    k.add_argument("--sweep", type=Path, help="the scene's material sweep on the same mesh: its snapshots give the "
+                   "nominal state and sensitivities at each --case (a grid point), instead of solving them again")
 
     m = sub.add_parser("mesh", help="mesh the scene and write it (.npz, .vtu, .msh or .xdmf)")
     m.add_argument("--scene", required=True, type=Path)
@@ -106,8 +115,8 @@ def _solve(args) -> None:
         f"{stats.seconds:.1f} s"
     )
     if not min(stats.min_det_f, at_probe, bound) > 0:
-        print(f"warning: det(I + grad u) {min(stats.min_det_f, at_probe, bound):.3g} <= 0: the solution turns an element inside "
-              "out at this displacement; the case is written but is not a deformation", file=sys.stderr)
+        print(f"warning: det(I + grad u) {min(stats.min_det_f, at_probe, bound):.3g} <= 0: the solution turns an "
+              "element inside out at this displacement; the case is written but is not a deformation", file=sys.stderr)
 
 
 def _sweep(args) -> int:
@@ -116,7 +125,8 @@ def _sweep(args) -> int:
     if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise ValueError(f"--scheduler: expected an address like tcp://host:8786, got {args.scheduler!r}")
     manifest = run_sweep(load_scene(args.scene), args.out, workers=args.workers, scheduler=args.scheduler)
-    print(f"{args.out}: {manifest.n_done}/{manifest.n_expected} snapshots, {manifest.wall_seconds_this_run:.1f} s this run")
+    print(f"{args.out}: {manifest.n_done}/{manifest.n_expected} snapshots, "
+          f"{manifest.wall_seconds_this_run:.1f} s this run")
     if manifest.validity.n_inverted:
         print(_inversion_warning(manifest), file=sys.stderr)
     if manifest.validity.n_unprobed:
@@ -156,8 +166,8 @@ def _inversion_warning(manifest) -> str:
     first = f"{firsts[0]:g} mm" if len(firsts) == 1 else f"{firsts[0]:g} to {firsts[-1]:g} mm depending on the angle"
     return (f"warning: {v.n_inverted} of {manifest.n_done} snapshots turn an element inside out (det(I + grad u) <= 0 "
             f"somewhere in a tet, min {v.min_det_f:.3g}), the first at {first}. They are "
-            f"written, and listed under `validity` in manifest.json. Every angle is valid up to {v.valid_up_to_mm:g} mm; "
-            f"`training fit` fits and serves only that part.")
+            f"written, and listed under `validity` in manifest.json. Every angle is valid up to {v.valid_up_to_mm:g} "
+            f"mm; `training fit` fits and serves only that part.")
 
 
 def _cases(args) -> int:
@@ -180,7 +190,8 @@ def _material_cases(args) -> int:
 
     scene = load_scene(args.scene)
     try:
-        positions = [tuple(float(v) for v in c.split("/")) for c in args.case] if args.case else default_positions(scene)
+        positions = ([tuple(float(v) for v in c.split("/")) for c in args.case] if args.case
+                     else default_positions(scene))
     except ValueError:
         raise ValueError(f"--case: expected DISPLACEMENT_MM/ANGLE_DEG like 10/0, got {args.case}") from None
     files = solve_material_cases(scene, load_or_build_mesh(scene, args.mesh), args.out, positions, workers=args.workers,
@@ -202,7 +213,8 @@ def _mesh(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     from fem_offline.fe.newton import ConvergenceError
 
     try:

@@ -109,7 +109,8 @@ def solve_one(scene_json: str, mesh_path: str, out: str, index: int, d_mm: float
     folder.write_case(case_file(Path(out), index), u, displacement_mm=d_mm, angle_deg=angle_deg,
                       record=folder.CaseRecord(**stats.record(), **between),
                       reference_positions=problem.mesh.nodes, scene_sha256=problem.scene.sha256(), started_from=started)
-    log.info("case %d: %g mm, %g deg, %d Newton iterations, %.1f s", index, d_mm, angle_deg, stats.iterations, stats.seconds)
+    log.info("case %d: %g mm, %g deg, %d Newton iterations, %.1f s", index, d_mm, angle_deg, stats.iterations,
+             stats.seconds)
     return None
 
 
@@ -124,7 +125,8 @@ def check_sweep_for_starts(scene: Scene, mesh_path: Path, sweep: Path) -> None:
     if not np.array_equal(read_mesh(sweep / manifest.mesh).nodes, read_mesh(mesh_path).nodes):
         raise ValueError(f"--sweep: {sweep} is on another mesh than the cases (use its mesh.npz as --mesh)")
     if manifest.n_done < manifest.n_expected:
-        raise ValueError(f"--sweep: {sweep} holds {manifest.n_done} of {manifest.n_expected} snapshots; finish it first")
+        raise ValueError(f"--sweep: {sweep} holds {manifest.n_done} of {manifest.n_expected} snapshots; "
+                         "finish it first")
 
 
 def solve_cases(scene: Scene, mesh_path: Path, out: Path, n: int, seed: int, *, workers: int = 2,

@@ -11,7 +11,8 @@ point the service feeds the graph), and solves one path from rest to the largest
 mirror-symmetric, so the path at -beta_k is the reflection of the one at beta_k (sweep._write_mirrored): each
 point gives two paths. With `sensitivities`, every snapshot also holds S_i = du/d ln E_i at its own theta_k (the
 gradient a Sobolev fit uses) at every `sensitivity_every`-th displacement (they cost about as much as the
-solve each; the gradients vary slowly with the push); without, the design is a held-out set (`--held-out`: the box's corners first).
+solve each; the gradients vary slowly with the push); without, the design is a held-out set (`--held-out`: the box's
+corners first).
 
 Layout: `design.json` (the points and what drew them), and one sweep folder per point (`p000/`, contracts.sweep:
 manifest, mesh.npz, snapshots), each the scene with E_i x exp(theta_ik) and the angles (-beta_k, beta_k). Every
@@ -80,7 +81,8 @@ def design_scene(scene: Scene, point: DesignPoint, *, sensitivities: bool) -> Sc
     tissues = tuple(point.theta)
     at = scaled_scene(scene, tissues, np.array([point.theta[t] for t in tissues]))
     b = point.angle_deg
-    sweep = at.sweep.model_copy(update={"angle_min_deg": -b, "angle_max_deg": b, "angle_step_deg": 2 * b if b > 0 else 1.0})
+    sweep = at.sweep.model_copy(update={"angle_min_deg": -b, "angle_max_deg": b,
+                                        "angle_step_deg": 2 * b if b > 0 else 1.0})
     materials = None
     if sensitivities:  # the ranges as the base scene's, widened to hold a corner's E that rounding put just outside
         materials = {t: m.model_copy(update={"youngs_kpa_range": (min(m.youngs_kpa_range[0], at.tissues[t].youngs),

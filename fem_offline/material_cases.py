@@ -4,8 +4,8 @@ At each guide position (d, beta) the nominal scene is solved (u0) with its sensi
 (fe.sensitivity), then the scene with the material tissues' E set to each material point is solved afresh.
 The points: every tissue at both ends of its declared range with the others nominal, then two corners where the
 tissues alternate between their ends (upper, lower, upper, ... and the reverse; theta_i = ln(E_i / E_i,nominal)).
-All at their lower or all at their upper ends would change no ratio, and so (nearly) nothing (fe/sensitivity.py). A fresh solve is a
-continuation in the materials at the final guide position: Newton from the nominal equilibrium plus the
+All at their lower or all at their upper ends would change no ratio, and so (nearly) nothing (fe/sensitivity.py). A
+fresh solve is a continuation in the materials at the final guide position: Newton from the nominal equilibrium plus the
 first-order change u0 + sum_i S_i theta_i (with the nominal contact multipliers), else in 2 or 4 steps of theta,
 else the path from rest; the equilibrium does not depend on the start (cases.py). A point where none converges is
 kept as a finding (NaN, its message in `failures`) and the check counts it. With --sweep, the S_i are the
@@ -42,7 +42,8 @@ def material_points(scene: Scene) -> tuple[tuple[str, ...], np.ndarray]:
     if not scene.materials:
         raise ValueError("--scene: the scene has no [materials]; there is nothing to check")
     tissues = tuple(scene.materials)
-    ends = np.array([[np.log(e / scene.tissues[t].youngs) for e in scene.materials[t].youngs_kpa_range] for t in tissues])
+    ends = np.array([[np.log(e / scene.tissues[t].youngs) for e in scene.materials[t].youngs_kpa_range]
+                     for t in tissues])
     rows = [np.eye(len(tissues))[i] * ends[i, j] for i in range(len(tissues)) for j in (0, 1)]
     alternate = np.arange(len(tissues)) % 2  # 0, 1, 0, ...: lower, upper, lower, ...
     corners = [ends[np.arange(len(tissues)), alternate], ends[np.arange(len(tissues)), 1 - alternate]]
@@ -70,8 +71,8 @@ def _at(scene: Scene, mesh: TetMesh, d_mm: float, angle_deg: float, start: np.nd
 CONTINUATION_STEPS = (1, 2, 4)
 
 
-def _fresh(scene: Scene, mesh: TetMesh, tissues: tuple[str, ...], theta: np.ndarray, nominal, sens: dict[str, np.ndarray],
-           d_mm: float, angle_deg: float) -> np.ndarray:
+def _fresh(scene: Scene, mesh: TetMesh, tissues: tuple[str, ...], theta: np.ndarray, nominal,
+           sens: dict[str, np.ndarray], d_mm: float, angle_deg: float) -> np.ndarray:
     """Equilibrium (n_nodes, 3) of the scene with E_i scaled by exp(theta_i) at (d, beta), from the nominal
     equilibrium `nominal` = (u0, contact multipliers) at the same guide position.
 
@@ -107,7 +108,8 @@ def nominal_from_sweep(sweep: Path, tissues: tuple[str, ...], d_mm: float, angle
     with np.load(Path(sweep) / snapshot_file(*hit[0])) as z:
         missing = [t for t in tissues if sensitivity_key(t) not in z.files]
         if missing:
-            raise ValueError(f"--sweep: {sweep} holds no sensitivities of {missing}: not a sweep of this scene's [materials]")
+            raise ValueError(f"--sweep: {sweep} holds no sensitivities of {missing}: "
+                             "not a sweep of this scene's [materials]")
         return z["displacement"], {t: z[sensitivity_key(t)] for t in tissues}
 
 

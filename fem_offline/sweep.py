@@ -96,9 +96,11 @@ def prepare(scene: Scene, out: Path) -> TetMesh:
         if old.scene_sha256 != scene.sha256():
             raise SceneError(f"{out} holds a sweep of another scene (sha256 {old.scene_sha256[:12]}); use a new --out")
         if old.source is not None and old.source.sha256 != sha256(scene.label_map.path):
-            raise SceneError(f"{out} holds a sweep of another label map (sha256 {old.source.sha256[:12]}); use a new --out")
+            raise SceneError(f"{out} holds a sweep of another label map (sha256 {old.source.sha256[:12]}); "
+                             "use a new --out")
         if old.validity is None and not old.nonlinear and old.snapshots:
-            raise SceneError(f"{out} holds linear snapshots written before det(I + grad u) was checked; use a new --out")
+            raise SceneError(f"{out} holds linear snapshots written before det(I + grad u) was checked; "
+                             "use a new --out")
     return kept_mesh(scene, out / folder.MESH_FILE)
 
 
@@ -163,7 +165,8 @@ def run_path(scene_json: str, out: str, path: list[Case], sensitivity_every: int
         steps = solve_path(problem, [c.displacement_mm for c in todo], todo[0].angle_deg, state, with_state=True)
         for case, (_, u, stats, reached) in zip(todo, steps):
             with_s = models if (case.displacement_index + 1) % sensitivity_every == 0 else None
-            write_snapshot(out, case, u, stats, between=check(u), sensitivity=path_sensitivities(with_s, problem, case, reached))
+            write_snapshot(out, case, u, stats, between=check(u),
+                           sensitivity=path_sensitivities(with_s, problem, case, reached))
             written += 1
             if os.getppid() != parent:  # the sweep was killed: stop after this (saved) snapshot
                 return {"written": written, "error": "sweep process ended"}
@@ -236,7 +239,8 @@ def _write_mirrored(out: Path, paths, twins: dict[int, int], image: np.ndarray) 
             with np.load(source) as z:
                 extra = {k: reflect(z[k], image) if k.startswith(SENSITIVITY_PREFIX) else z[k]  # S mirrors as u
                          for k in z.files if k not in ("displacement", "angle_deg", "displacement_mm")}
-                atomic_savez(target, displacement=reflect(z["displacement"], image), displacement_mm=case.displacement_mm,
+                atomic_savez(target, displacement=reflect(z["displacement"], image),
+                             displacement_mm=case.displacement_mm,
                              angle_deg=case.angle_deg, mirrored_from=src.file, **extra)
             written += 1
     return written
@@ -258,7 +262,8 @@ def single_threaded_pool(workers: int) -> ProcessPoolExecutor:
             os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
 
 
-def run_jobs(jobs, *, workers: int, scheduler: str | None, progress, sensitivity_every: int = 1) -> dict[str, list[str]]:
+def run_jobs(jobs, *, workers: int, scheduler: str | None, progress,
+             sensitivity_every: int = 1) -> dict[str, list[str]]:
     """Solve the pending paths of every (scene, folder, paths) job on one local process pool or a Dask cluster,
     then reflect each mirrored folder's beta < 0 paths; progress from the files written. Returns each folder's
     errors (paths that stopped) by str(folder)."""
@@ -334,12 +339,14 @@ def write_manifest(scene: Scene, mesh: TetMesh, out: Path, paths, *, seconds: fl
                    errors: list[str]) -> folder.SweepManifest:
     """Describe the folder as it is on disk: one record (with sha256) per finished snapshot."""
     rows = [folder.snapshot_record(out, c.file) for p in paths for c in p if (out / c.file).exists()]
-    grid_ = folder.Grid(displacements_mm=scene.sweep.displacements_mm.tolist(), angles_deg=scene.sweep.angles_deg.tolist())
+    grid_ = folder.Grid(displacements_mm=scene.sweep.displacements_mm.tolist(),
+                        angles_deg=scene.sweep.angles_deg.tolist())
     manifest = folder.SweepManifest(
         scene_name=scene.name, scene_sha256=scene.sha256(), scene=scene.model_dump(mode="json"),
         mesh_sha256=sha256(out / folder.MESH_FILE), n_nodes=len(mesh.nodes), n_tets=len(mesh.tets),
         nonlinear=scene.effects.geometric_nonlinearity, grid=grid_, envelope=grid_.envelope,
-        n_expected=sum(len(p) for p in paths), n_done=len(rows), n_mirrored=sum(r.mirrored_from is not None for r in rows),
+        n_expected=sum(len(p) for p in paths), n_done=len(rows),
+        n_mirrored=sum(r.mirrored_from is not None for r in rows),
         wall_seconds_this_run=seconds, errors=errors, snapshots=rows,
         source=source_of(scene.label_map) if scene.label_map is not None else None,
         validity=folder.validity_of(grid_, rows), materials=list(scene.materials or {}))

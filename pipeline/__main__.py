@@ -1,4 +1,5 @@
-"""Command line: `python -m pipeline build --scene patient.toml --out models/NAME [--work runs/NAME]`; bad input gets one line, exit 2."""
+"""Command line: `python -m pipeline build --scene patient.toml --out models/NAME [--work runs/NAME]`;
+bad input gets one line, exit 2."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
     ap.add_argument("-v", "--verbose", action="store_true")
     sub = ap.add_subparsers(dest="command", required=True)
-    b = sub.add_parser("build", help="scene (e.g. a segmentation's) -> mesh -> sweep -> off-grid cases -> model folder (resumable)")
+    b = sub.add_parser("build", help="scene (e.g. a segmentation's) -> mesh -> sweep -> off-grid cases "
+                                     "-> model folder (resumable)")
     b.add_argument("--scene", required=True, type=Path)
     b.add_argument("--out", required=True, type=Path, help="model folder, e.g. models/patient_a")
     b.add_argument("--work", type=Path, help="sweep and cases folder (default runs/<name of --out>)")
@@ -21,14 +23,16 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--width", type=int, default=30, help="hidden neurons (default 30: on a 4 deg sweep, 60 overfits "
                    "between the angles, docs/results/sweep_density_patient.json)")
     b.add_argument("--workers", type=int, default=2)
-    b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, `python -m studies labelmap-truth`'s JSON "
-                   "(default: the package's copy of docs/results/labelmap_truth.json): the row of the map's voxel size, mesher and sizes goes into the manifest")
+    b.add_argument("--fe-estimate", type=Path, help="label-map FE error estimates, `python -m studies "
+                   "labelmap-truth`'s JSON (default: the package's copy of docs/results/labelmap_truth.json): the row "
+                   "of the map's voxel size, mesher and sizes goes into the manifest")
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     from fem_offline.fe.newton import ConvergenceError
     from fem_offline.scene import SceneError
 

@@ -89,7 +89,8 @@ def build(scene_path: str | Path, out: str | Path, *, work: str | Path | None = 
     scene, displacements = _valid_part(scene, manifest, say)
     say(f"[2/3] {options.offgrid_cases} off-grid cases into {work / 'offgrid'}")
     mesh_path = mesh_for_cases(read_mesh(work / "sweep" / "mesh.npz"), work / "offgrid")
-    failures = solve_cases(scene, mesh_path, work / "offgrid", options.offgrid_cases, options.seed, workers=options.workers,
+    failures = solve_cases(scene, mesh_path, work / "offgrid", options.offgrid_cases, options.seed,
+                           workers=options.workers,
                            sweep=work / "sweep")  # each case starts from the sweep's fields around it
     if failures:
         raise RuntimeError(f"off-grid cases: {len(failures)} failed, first: {failures[0]}")

@@ -47,7 +47,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         predictor = Predictor(folder, session=session)
-        pipeline = Pipeline.start(predictor, model=info.name, settings=settings, observe=app.state.metrics.observe_batch)
+        pipeline = Pipeline.start(predictor, model=info.name, settings=settings,
+                                  observe=app.state.metrics.observe_batch)
         app.state.predictor = predictor
         app.state.closing = Closing.of(predictor)  # /estimate and /plan
         app.state.pipeline = pipeline  # /predict

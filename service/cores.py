@@ -53,7 +53,8 @@ def usable_cores(*, affinity: set[int] | None = None, cpu_max: Path | None = Non
     return cores
 
 
-# the most a batch waits to grow (service/predict/batching.py), ms, unless a streamed basis runs on 2 to 7 cores (for_cores)
+# the most a batch waits to grow (service/predict/batching.py), ms, unless a streamed basis runs on 2 to 7
+# cores (for_cores)
 MAX_DELAY_MS = 5.0
 
 

@@ -79,7 +79,8 @@ class Guide:
         off_deg = float(np.rad2deg(np.arctan2(sin, (np.trace(rest) - 1) / 2)))
         if off_deg > OFF_AXIS_DEG:
             raise OffAxisPose(f"rotation {off_deg:.3f} deg about an axis other than the tilt normal "
-                              f"(tolerance {OFF_AXIS_DEG} deg); the model knows only tilts about {self.tilt_normal.tolist()}")
+                              f"(tolerance {OFF_AXIS_DEG} deg); the model knows only tilts about "
+                              f"{self.tilt_normal.tolist()}")
         a = self.direction(beta)
         d = float(t @ a)
         off_mm = float(np.linalg.norm(t - d * a))

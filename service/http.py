@@ -132,7 +132,8 @@ def parse_json(body: bytes):
     try:
         return json.loads(body)
     except UnicodeDecodeError:
-        raise RequestProblem(400, field="body", type="not_utf8", message="body: not UTF-8 text, as JSON must be") from None
+        raise RequestProblem(400, field="body", type="not_utf8",
+                             message="body: not UTF-8 text, as JSON must be") from None
 
 
 class JsonRequest(Request):

@@ -11,10 +11,10 @@ sending only (d, beta) gets the nominal answer. The graph takes theta = ln(E / E
 ln E (contracts.materials.sigma_ln_e: std(E) / E, or 2 std(v_s) / v_s, to first order).
 
 A model judged by ratios (MaterialsInfo.by_ratios: every load-bearing tissue an input) takes any E within
-RATIO_SPAN of the nominal: the request is judged by its ratios, and the graph answers at the box's point with those ratios nearest the nominal
-(contracts.materials.ratio_point), so every E x k gets the answer of E; ratios no point of the box has are a 422
-naming a tissue and the bound it crossed (`materials.prostate`, type outside_box). Otherwise each value must lie
-inside its declared range (422 naming e.g. `materials.prostate.youngs_kpa`).
+RATIO_SPAN of the nominal: the request is judged by its ratios, and the graph answers at the box's point with those
+ratios nearest the nominal (contracts.materials.ratio_point), so every E x k gets the answer of E; ratios no point of
+the box has are a 422 naming a tissue and the bound it crossed (`materials.prostate`, type outside_box). Otherwise each
+value must lie inside its declared range (422 naming e.g. `materials.prostate.youngs_kpa`).
 
 Every answer of a material model carries `std_mm` (per returned point, the std of x, y and z: 1 sigma) and an
 `error_budget`: the surrogate's and the FE discretisation's bounds and the first-order material model's error
@@ -110,7 +110,8 @@ def _tissue_model(m: MaterialInput, *, by_ratios: bool) -> type[TissueValueBase]
         f"Material_{m.tissue}", __base__=TissueValueBase,
         youngs_kpa=(_number(e_what, **e_kw), None), shear_wave_speed_m_s=(_number(v_what, **v_kw), None),
         std_percent=(Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, ge=0, le=100,
-                                                      description=f"1-sigma, % of the value (default {m.std_percent:g} % of E)")], None),
+                                                      description=f"1-sigma, % of the value "
+                                                                  f"(default {m.std_percent:g} % of E)")], None),
         std=(Annotated[Optional[float], Field(None, strict=True, allow_inf_nan=False, ge=0,
                                               description="1-sigma in the value's unit, at most the value")], None))
 
@@ -180,7 +181,8 @@ def budget_parts(manifest: ModelManifest) -> dict[str, dict]:
         "material_first_order": mat.reference if mat is not None else "not checked against fresh FE for this model",
         "material_std": "first-order propagation of the materials' std through du/d ln E, largest |std| at the "
                         "returned points (std_mm: per point, the std of x, y and z)",
-        "total": f"the measured bounds + {STD_SIGMAS:g} x material_std_mm_max; a term not measured counts 0 and is null"}
+        "total": f"the measured bounds + {STD_SIGMAS:g} x material_std_mm_max; "
+                 "a term not measured counts 0 and is null"}
     return parts
 
 
@@ -231,6 +233,6 @@ def summary(info: MaterialsInfo) -> dict:
             "box": box(info),
             "std": {"std_mm": "1 sigma of x, y and z per point", "sigma_ln_e": "std_percent / 100 of E, "
                     "2 std_percent / 100 of a shear-wave speed (std / value in its unit)",
-                    "halo_sigmas": HALO_SIGMAS, "halo": f"drawn and sent as a sphere of radius {HALO_SIGMAS:g} x |std_mm| "
-                    f"(the viewer's halo; OpenIGTLink's point diameter {2 * HALO_SIGMAS:g} x |std_mm|)"},
+                    "halo_sigmas": HALO_SIGMAS, "halo": f"drawn and sent as a sphere of radius {HALO_SIGMAS:g} x "
+                    f"|std_mm| (the viewer's halo; OpenIGTLink's point diameter {2 * HALO_SIGMAS:g} x |std_mm|)"},
             "accuracy": info.accuracy.model_dump() if info.accuracy is not None else None}

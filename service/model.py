@@ -14,7 +14,8 @@ from contracts.model import ModelError, ModelFolder, ModelManifest, check_graph,
 from .materials import budget_parts
 
 log = logging.getLogger(__name__)
-__all__ = ["ModelError", "ModelFolder", "check_graph", "onnx_session", "OutsideMesh", "PointLocator", "Predictor", "read_model_folder"]
+__all__ = ["ModelError", "ModelFolder", "check_graph", "onnx_session", "OutsideMesh", "PointLocator", "Predictor",
+           "read_model_folder"]
 
 
 class OutsideMesh(ValueError):
@@ -49,7 +50,8 @@ class Predictor:
             feed["nodes"] = np.asarray(nodes, dtype=np.int64)
         return self.session.run(None, feed)[0]
 
-    def decode_std(self, guides: np.ndarray, nodes: np.ndarray | None, materials: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def decode_std(self, guides: np.ndarray, nodes: np.ndarray | None,
+                   materials: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A material model's (displacement, std), each (batch, k, 3) float32 mm; `materials` (batch, 2, m): theta
         = ln(E/E_nominal) and the std of ln E per tissue (service/materials.py)."""
         feed = {"guide": np.asarray(guides, dtype=np.float32).reshape(-1, 2),

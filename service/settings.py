@@ -27,13 +27,15 @@ class Settings(BaseSettings):
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 8000
     # Process and thread counts default from the cores this process may use (service/cores.py)
-    threads: Annotated[int, Field(ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).threads, description=(
-        "onnxruntime intra-op threads per worker (default: from the usable cores and the model's size)"))]
+    threads: Annotated[int, Field(
+        ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).threads, description=(
+            "onnxruntime intra-op threads per worker (default: from the usable cores and the model's size)"))]
     max_points: Annotated[int, Field(ge=1, le=1_000_000, description="most points in one request")] = 10_000
     max_body_bytes: Annotated[int, Field(ge=1024, le=1 << 30, description="largest request body")] = 1 << 20
     log_level: str = "info"
-    workers: Annotated[int, Field(ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).workers, description=(
-        "uvicorn worker processes (default: from the usable cores and the model's size)"))]
+    workers: Annotated[int, Field(
+        ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).workers, description=(
+            "uvicorn worker processes (default: from the usable cores and the model's size)"))]
     access_log: Literal["text", "json", "off"] = Field(
         "text", description="one line per request: uvicorn's text, JSON lines on stdout, or none")
 
@@ -44,11 +46,13 @@ class Settings(BaseSettings):
     batch_max_size: Annotated[int, Field(ge=1, le=256, description="most requests in one batch")] = 16
     batch_preferred_sizes: CommaInts = Field([], description=(
         "batch sizes worth waiting for (as Triton's preferred_batch_size), comma-separated; none: only the largest"))
-    batch_max_delay_ms: Annotated[float, Field(ge=0, le=100, default_factory=lambda data: defaults(data.get('model')).max_delay_ms, description=(
-        "most a batch may wait to grow once a lane is free, ms, when the last batch had company; "
-        "capped at a quarter of the recent batch run time (default: 5, or 0 for a large model on 2 to 7 cores)"))]
-    batch_lanes: Annotated[int, Field(ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).lanes, description=(
-        "batches decoded at once, each in its own thread (default: from the usable cores and the model's size)"))]
+    batch_max_delay_ms: Annotated[float, Field(
+        ge=0, le=100, default_factory=lambda data: defaults(data.get('model')).max_delay_ms, description=(
+            "most a batch may wait to grow once a lane is free, ms, when the last batch had company; "
+            "capped at a quarter of the recent batch run time (default: 5, or 0 for a large model on 2 to 7 cores)"))]
+    batch_lanes: Annotated[int, Field(
+        ge=1, le=64, default_factory=lambda data: defaults(data.get('model')).lanes, description=(
+            "batches decoded at once, each in its own thread (default: from the usable cores and the model's size)"))]
     inline_max_ms: Annotated[float, Field(ge=0, le=10, description=(
         "decode on the event loop, with no thread hop, a request whose decode measured at start takes at most "
         "this long, when no batch is waiting or running; 0: never"))] = 1.0

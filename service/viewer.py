@@ -78,7 +78,8 @@ def frame_requests(folder: ModelFolder, node_ids: np.ndarray) -> list[str | None
 
 
 def gather(folder: ModelFolder, regions: list[str | None], node_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(request index, row in that reply) of each node: where its deformed position arrives in a frame; -1, 0 if nowhere."""
+    """(request index, row in that reply) of each node: where its deformed position arrives in a frame;
+    -1, 0 if nowhere."""
     source, row = np.full(len(node_ids), -1), np.zeros(len(node_ids), dtype=np.int64)
     for i, name in enumerate(regions):
         ids = np.arange(len(folder.nodes)) if name is None else folder.regions[name]
@@ -179,7 +180,7 @@ def viewer_router() -> APIRouter:
 
     @router.get("/viewer", response_class=FileResponse)
     def page():
-        """The 3-D viewer: tissue surfaces deformed live as the guide sliders move; click the prostate to add a target."""
+        """The 3-D viewer: tissue surfaces deformed live as the guide sliders move; click the prostate to add a target."""  # noqa: E501 -- the route's description in /openapi.json
         return static("index.html")
 
     def loaded(request: Request) -> tuple[Predictor, Scene]:
@@ -192,7 +193,7 @@ def viewer_router() -> APIRouter:
 
     @router.get("/viewer/scene.json")
     def scene(request: Request):
-        """What the viewer draws, once: reference surfaces per tissue with the region to decode, markers, guide, envelope."""
+        """What the viewer draws, once: reference surfaces per tissue with the region to decode, markers, guide, envelope."""  # noqa: E501 -- the route's description in /openapi.json
         return Response(loaded(request)[1].json, media_type="application/json")
 
     @router.post("/viewer/targets", responses={

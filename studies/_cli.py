@@ -1,8 +1,8 @@
 """One command line for a package of studies or benchmarks: `python -m <package> NAME [flags]` or `--list`.
 
-Each public module of the package (no leading underscore, not in the package's LIBRARY_MODULES) is a command named after it (dashes for
-underscores). It has a module docstring, whose first line `--list` prints, and `main(argv) -> int | None`,
-which parses its own flags with argparse.
+Each public module of the package (no leading underscore, not in the package's LIBRARY_MODULES) is a command named after
+it (dashes for underscores). It has a module docstring, whose first line `--list` prints, and
+`main(argv) -> int | None`, which parses its own flags with argparse.
 """
 
 from __future__ import annotations

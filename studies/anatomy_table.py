@@ -93,7 +93,8 @@ def row(variant: str, folder: Path, *, displacement_mm: float, angle_deg: float)
                  "tip_nearest_node": tip.node, "tip_snap_to": scene.guide.snap_to},
         "displacement_mm": displacement_mm, "angle_deg": angle_deg, "solve": record,
         "markers": {name: {"position_mm": np.round(mesh.nodes[i], 3).tolist(), "u_mm": np.round(u[i], 4).tolist(),
-                           "abs_u_mm": round(float(np.linalg.norm(u[i])), 4)} for name, i in zip(marker_names(), markers)},
+                           "abs_u_mm": round(float(np.linalg.norm(u[i])), 4)}
+                    for name, i in zip(marker_names(), markers)},
     }
 
 
@@ -101,13 +102,16 @@ def table(rows: list[dict]) -> str:
     """The markdown table: one column per variant, anatomy first, then |u| per marker."""
     a = [r["anatomy"] for r in rows]
     lines = ["| | " + " | ".join(r["variant"] for r in rows) + " |", "|---" * (len(rows) + 1) + "|"]
-    fields = [("prostate length (mesh), mm", lambda r, x: f"{x['prostate_length_mm']:g} ({r['mesh']['prostate_length_mm']:.1f})"),
+    fields = [("prostate length (mesh), mm",
+               lambda r, x: f"{x['prostate_length_mm']:g} ({r['mesh']['prostate_length_mm']:.1f})"),
               ("prostate size x, y, z, mm", lambda r, x: ", ".join(f"{v:g}" for v in x["prostate_size_mm"])),
-              ("prostate centre offset x, y, z, mm", lambda r, x: ", ".join(f"{v:+g}" for v in x["prostate_offset_mm"])),
+              ("prostate centre offset x, y, z, mm",
+               lambda r, x: ", ".join(f"{v:+g}" for v in x["prostate_offset_mm"])),
               ("rectal wall, mm", lambda r, x: f"{x['rectal_wall_mm']:g}"),
               ("lumen to prostate, mm", lambda r, x: f"{x['prostate_to_lumen_mm']:.1f}"),
               ("tets", lambda r, x: f"{r['mesh']['tets']:,}"),
-              ("guide tip snapped to x, y, z, mm", lambda r, x: ", ".join(f"{v:.1f}" for v in r["mesh"]["tip_snapped_mm"]))]
+              ("guide tip snapped to x, y, z, mm",
+               lambda r, x: ", ".join(f"{v:.1f}" for v in r["mesh"]["tip_snapped_mm"]))]
     lines += [f"| {name} | " + " | ".join(f(r, x) for r, x in zip(rows, a)) + " |" for name, f in fields]
     for m in rows[0]["markers"]:
         lines.append(f"| \\|u\\| {m}, mm | " + " | ".join(f"{r['markers'][m]['abs_u_mm']:.2f}" for r in rows) + " |")
@@ -117,7 +121,8 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies anatomy-table", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies anatomy-table", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--variants", nargs="+", choices=("small", "medium", "large"), default=["small", "medium", "large"])
     ap.add_argument("--work", type=Path, default=Path("runs/anatomy"))
     ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), default=1.0)
@@ -136,7 +141,9 @@ def main(argv: list[str] | None = None) -> int | None:
     if args.prepare_only:
         return 0
     rows = [row(v, args.work / v, displacement_mm=d, angle_deg=beta) for v in args.variants]
-    print(f"\nguide push {d:g} mm at beta = {beta:g} deg, {args.spacing_mm:g} mm label maps, the scenes' physics and mesh sizes\n")
+    print(f"\nguide push {d:g} mm at beta = {beta:g} deg, {args.spacing_mm:g} mm label maps, "
+          "the scenes' physics and mesh sizes\n")
     print(table(rows))
-    print(f"\nwrote {results.write('anatomy_table', {'spacing_mm': args.spacing_mm, 'rows': rows}, publish=args.publish)}")
+    path = results.write("anatomy_table", {"spacing_mm": args.spacing_mm, "rows": rows}, publish=args.publish)
+    print(f"\nwrote {path}")
     return 0

@@ -40,10 +40,10 @@ def table(result: dict) -> str:
         diff = f"{r['marker_difference_max_mm']:.3f} mm" if "marker_difference_max_mm" in r else "-"
         solve = r["linear_solve"].split(":")[0]  # runs, fails, not run
         d = r["prostate_surface_to_voxels"]
-        lines.append(f"| {r['spacing_mm']:g} mm | {r['mesher']} | {r['tets']:,} | {r['seconds']:.1f} s | {r['inverted']} | "
-                     f"{r['degenerate']} | {r['min_dihedral_deg']:.1f}° | {vol} | {r['faces_with_three_owners']} | "
-                     f"{d['max_mm']:.2f} / {d['mean_mm']:.2f} mm ({d['max_voxels']:.2f} / {d['mean_voxels']:.2f} voxel) | "
-                     f"{solve} | {diff} |")
+        lines.append(f"| {r['spacing_mm']:g} mm | {r['mesher']} | {r['tets']:,} | {r['seconds']:.1f} s | "
+                     f"{r['inverted']} | {r['degenerate']} | {r['min_dihedral_deg']:.1f}° | {vol} | "
+                     f"{r['faces_with_three_owners']} | {d['max_mm']:.2f} / {d['mean_mm']:.2f} mm "
+                     f"({d['max_voxels']:.2f} / {d['mean_voxels']:.2f} voxel) | {solve} | {diff} |")
     return "\n".join(lines)
 
 
@@ -56,7 +56,8 @@ def result_name(scene: Path, meshers: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies compare-meshers", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies compare-meshers", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_flag(ap, what="a phantom scene")
     ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), nargs="+", default=[1.0])
     ap.add_argument("--meshers", nargs="+", choices=tuple(PACKAGE), default=DEFAULT_MESHERS)
@@ -78,9 +79,10 @@ def main(argv: list[str] | None = None) -> int | None:
         return 2
     name = args.name or result_name(args.scene, meshers)
     write = lambda result: results.write(name, result, publish=args.publish)  # noqa: E731 -- after every row
-    result = study(scene, spacings_mm=args.spacing_mm, meshers=[m for m in meshers if m not in missing], folder=args.work,
-                   max_solve_tets=args.max_solve_tets, on_row=write)
+    result = study(scene, spacings_mm=args.spacing_mm, meshers=[m for m in meshers if m not in missing],
+                   folder=args.work, max_solve_tets=args.max_solve_tets, on_row=write)
     print(table(result))
     print(f"gmsh phantom, |u| at its 8 markers: {', '.join(f'{u:.3f}' for u in result['phantom_marker_u_mm'])} mm; "
-          f"change when every size / 1.3: max {max(result['phantom_refined_marker_difference_mm']):.3f} mm; {write(result)}")
+          f"change when every size / 1.3: max {max(result['phantom_refined_marker_difference_mm']):.3f} mm; "
+          f"{write(result)}")
     return 0

@@ -78,7 +78,8 @@ def compare(scene_path: Path, scales: list[float]) -> dict:
                     row["change_from_coarser_mm"][name] = {
                         "markers_max": float(_dist(a["markers"], b["markers"]).max()),
                         "surface_near_tip_max": float(surf[near].max()), "surface_rest_max": float(surf[~near].max()),
-                        "surface_mean": float(surf.mean()), "interior_max": float(_dist(a["interior"], b["interior"]).max())}
+                        "surface_mean": float(surf.mean()),
+                        "interior_max": float(_dist(a["interior"], b["interior"]).max())}
             rows.append(row)
         result["cases"][case] = rows
     return result
@@ -86,10 +87,13 @@ def compare(scene_path: Path, scales: list[float]) -> dict:
 
 def markdown(r: dict, command: str) -> str:
     lines = ["# Guide-wall model: glued patch vs rigid tip in contact", "",
-             f"Written by `{command}`, from the checkpoints of the two grid-convergence studies (same meshes per level).",
-             "Glued: the wall nodes within 6 mm of the tip follow it with the rounded-tip weight. Contact: a rigid sphere "
-             "of radius 6 mm touching the wall at the tip, frictionless, augmented Lagrangian, penetration <= 0.005 mm.",
-             f"Surface zones: prostate-surface points < {NEAR_TIP_MM:g} mm from the tip (near tip) and the rest. mm throughout.", ""]
+             f"Written by `{command}`, from the checkpoints of the two grid-convergence studies "
+             "(same meshes per level).",
+             "Glued: the wall nodes within 6 mm of the tip follow it with the rounded-tip weight. Contact: a rigid "
+             "sphere of radius 6 mm touching the wall at the tip, frictionless, augmented Lagrangian, "
+             "penetration <= 0.005 mm.",
+             f"Surface zones: prostate-surface points < {NEAR_TIP_MM:g} mm from the tip (near tip) and the rest. mm "
+             "throughout.", ""]
     for case, rows in r["cases"].items():
         lines += [f"## {case}", "", "How much each model still changes when the mesh is refined (max over the points; "
                   "a model that converges changes less at each level):", "",
@@ -97,15 +101,18 @@ def markdown(r: dict, command: str) -> str:
                   "|---|---|---|---|---|---|---|"]
         for row in rows[1:]:
             for name, ch in row["change_from_coarser_mm"].items():
-                lines.append(f"| {row['n_tets']:,} | {name} | {ch['markers_max']:.3f} | {ch['surface_near_tip_max']:.3f} | "
-                             f"{ch['surface_rest_max']:.3f} | {ch['surface_mean']:.3f} | {ch['interior_max']:.3f} |")
+                lines.append(f"| {row['n_tets']:,} | {name} | {ch['markers_max']:.3f} | "
+                             f"{ch['surface_near_tip_max']:.3f} | {ch['surface_rest_max']:.3f} | "
+                             f"{ch['surface_mean']:.3f} | {ch['interior_max']:.3f} |")
         lines += ["", "The two models apart, min det F and path solve time:", "",
-                  "| level (tets) | markers max / mean | surface near tip max | surface rest max / mean | interior (centroid, 5, 10 mm) "
-                  "| min det F glued / contact (4 points; 11 points) | time glued / contact |", "|---|---|---|---|---|---|---|"]
+                  "| level (tets) | markers max / mean | surface near tip max | surface rest max / mean | interior "
+                  "(centroid, 5, 10 mm) | min det F glued / contact (4 points; 11 points) | time glued / contact |",
+                  "|---|---|---|---|---|---|---|"]
         for row in rows:
             a = row["apart_mm"]
             lines.append(f"| {row['n_tets']:,} | {a['markers']['max']:.3f} / {a['markers']['mean']:.3f} | "
-                         f"{a['surface_near_tip']['max']:.3f} | {a['surface_rest']['max']:.3f} / {a['surface_rest']['mean']:.3f} | "
+                         f"{a['surface_near_tip']['max']:.3f} | {a['surface_rest']['max']:.3f} / "
+                         f"{a['surface_rest']['mean']:.3f} | "
                          + ", ".join(f"{x:.3f}" for x in a["interior"]) + " | "
                          f"{row['min_det_f']['glued'][0]:.3f} / {row['min_det_f']['contact'][0]:.3f}; "
                          f"{row['min_det_f']['glued'][1]:.3f} / {row['min_det_f']['contact'][1]:.3f} | "
@@ -115,19 +122,21 @@ def markdown(r: dict, command: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies contact-vs-glued", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies contact-vs-glued", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_flag(ap)
     add_scales_flag(ap, [1.69, 1.3, 1.0], "the studies' levels, coarsest first")
     results.add_publish_flag(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     result = compare(args.scene, args.scales)
-    path = results.write("contact_vs_glued", {**result, "report_md": markdown(result, results.command())}, publish=args.publish)
+    path = results.write("contact_vs_glued", {**result, "report_md": markdown(result, results.command())},
+                         publish=args.publish)
     for case, rows in result["cases"].items():
         last = rows[-1]["change_from_coarser_mm"]
         print(f"{case}: last refinement changes markers by glued {last['glued']['markers_max']:.3f} / contact "
-              f"{last['contact']['markers_max']:.3f} mm, surface near tip {last['glued']['surface_near_tip_max']:.3f} / "
-              f"{last['contact']['surface_near_tip_max']:.3f} mm; models apart at the markers "
+              f"{last['contact']['markers_max']:.3f} mm, surface near tip {last['glued']['surface_near_tip_max']:.3f} "
+              f"/ {last['contact']['surface_near_tip_max']:.3f} mm; models apart at the markers "
               f"{rows[-1]['apart_mm']['markers']['max']:.3f} mm")
     print(f"wrote {path}")
     return 0

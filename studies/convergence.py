@@ -156,7 +156,8 @@ def at_points(mesh, u: np.ndarray, points: np.ndarray) -> np.ndarray:
     return interpolation_matrix(mesh.nodes, mesh.tets, points, nearest=True) @ u
 
 
-def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float, checkpoint: Path) -> tuple[np.ndarray, float]:
+def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float,
+                    checkpoint: Path) -> tuple[np.ndarray, float]:
     """The nonlinear solution at one case, load-stepped from rest; every converged step is saved to
     `checkpoint`, and a later call resumes from the last one. Returns (u (n_nodes, 3), seconds spent).
 
@@ -279,8 +280,8 @@ def analyse(raw: dict) -> dict:
             medium_band, _ = field_gci(u3[group], u2[group], u1[group], ratio, order, level="medium")
             bound, coarse_bound = _level_bound(u2[group], u1[group], band), _level_bound(u3[group], u1[group], band)
             lower = {s: _level_bound(u[group], u1[group], band) for s, u in below.items()}
-            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g), "gci_vector_medium_mm": float(h),
-                           "bound_medium_mm": float(k), "bound_coarse_mm": float(m),
+            row[group] = [{**_row(richardson(a, b, c, ratio)), "gci_vector_mm": float(g),
+                           "gci_vector_medium_mm": float(h), "bound_medium_mm": float(k), "bound_coarse_mm": float(m),
                            "bound_by_scale_mm": {s: float(x[i]) for s, x in lower.items()}}
                           for i, (a, b, c, g, h, k, m) in enumerate(zip(*mags, band, medium_band, bound, coarse_bound))]
         for zone, mask in (("near_tip", near), ("rest", ~near)):
@@ -293,7 +294,8 @@ def analyse(raw: dict) -> dict:
                 "change_fine_medium_mm": _summary(np.linalg.norm(s1 - s2, axis=1)),
                 "bound_medium_mm": _summary(_level_bound(s2, s1, band)),
                 "bound_coarse_mm": _summary(_level_bound(s3, s1, band)),
-                "bound_by_scale_mm": {s: _summary(_level_bound(u["prostate_surface"][mask], s1, band)) for s, u in below.items()},
+                "bound_by_scale_mm": {s: _summary(_level_bound(u["prostate_surface"][mask], s1, band))
+                                      for s, u in below.items()},
                 **{stat: _row(richardson(*(f(m) for m in mags), ratio))
                    for stat, f in (("max", np.max), ("p95", lambda m: np.percentile(m, 95)), ("mean", np.mean))}}
         out["cases"][case] = row

@@ -27,7 +27,8 @@ from studies.convergence import HARD_CASES, scaled_scene, study_scene
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies convergence-from-sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies convergence-from-sweep", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
     ap.add_argument("--scale", type=float, required=True, help="the study level the sweep is (sizes x scale)")
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/grid_study_base.toml"))

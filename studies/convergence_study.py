@@ -15,7 +15,7 @@ solves the hard cases on each, resumably (every converged load step is checkpoin
 rerun the same command to resume), and reports for the three finest levels the observed order,
 the Richardson estimate, the GCI and the monotonic/oscillatory kind of each quantity
 (studies/convergence.py). Set MKL_NUM_THREADS (2 on this machine) for PARDISO.
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -49,7 +49,8 @@ def markdown(result: dict, command: str, seconds: float, image: str = "convergen
 
     def more(r: dict, summary: bool = False) -> str:  # the bounds of the levels coarser than the three
         b = r.get("bound_by_scale_mm", {})
-        return "".join(f" max {b[k]['max']:.3f}, p95 {b[k]['p95']:.3f} |" if summary else f" {b[k]:.3f} |" for k in keys)
+        return "".join(f" max {b[k]['max']:.3f}, p95 {b[k]['p95']:.3f} |" if summary else f" {b[k]:.3f} |"
+                       for k in keys)
 
     lines = ["# Grid convergence at the prostate", "",
              f"Written by `{command}` ({seconds / 60:.0f} min of solving, summed over the levels).", "",
@@ -58,35 +59,41 @@ def markdown(result: dict, command: str, seconds: float, image: str = "convergen
              + (" The GCI comes from the three finest." if below else ""),
              "Values are |u| in mm, coarse / medium / fine; p is the observed order (Celik's fixed point where "
              "r32 != r21); the estimate is Richardson's; GCI is the fine mesh's error band (Fs = 1.25), in mm. "
-             "\"GCI vector\" is the band of the displacement vector at that point: Fs |u_fine - u_medium| / (r21^q - 1) "
-             "with one order per case, that of the mean |u| over every node (its kind is on the \"every node\" row); "
-             "where that mean does not converge monotonically, Fs times the larger change between levels. "
+             "\"GCI vector\" is the band of the displacement vector at that point: Fs |u_fine - u_medium| / (r21^q - "
+             "1) with one order per case, that of the mean |u| over every node (its kind is on the \"every node\" "
+             "row); where that mean does not converge monotonically, Fs times the larger change between levels. "
              "\"Medium bound\" is how far the medium mesh can be from the converged value: |u_medium - u_fine| + "
              "the fine GCI vector, point by point; \"coarse bound\" the same for the coarse mesh"
              + "".join(f"; \"bound x{x['scale']:g}\" the same for the level under the three, {x['n_tets']:,} tets "
                        f"(sizes x {x['scale']:g})" for x in below) + ".", ""]
-    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound | coarse bound |"
-            + "".join(f" bound x{k} |" for k in keys) + "\n|---|---|---|---|---|---|---|---|---|" + "---|" * len(keys))
+    head = ("| quantity | coarse / medium / fine | kind | p | Richardson | GCI fine | GCI vector | medium bound | "
+            "coarse bound |" + "".join(f" bound x{k} |" for k in keys)
+            + "\n|---|---|---|---|---|---|---|---|---|" + "---|" * len(keys))
     for case, row in result["cases"].items():
-        lines += [f"## {case}", "", "Solve time per level, coarsest first: " + ", ".join(f"{s / 60:.1f} min" for s in row["seconds"]), "", head]
+        times = ", ".join(f"{s / 60:.1f} min" for s in row["seconds"])
+        lines += [f"## {case}", "", "Solve time per level, coarsest first: " + times, "", head]
         for i, r in enumerate(row["markers"]):
-            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |" + more(r))
-        for name, r in zip(("prostate centroid", "5 mm in front of the tip", "10 mm in front of the tip"), row["interior"]):
-            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | {r['bound_coarse_mm']:.3f} |" + more(r))
+            lines.append(f"| marker {i + 1} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | "
+                         f"{r['bound_coarse_mm']:.3f} |" + more(r))
+        for name, r in zip(("prostate centroid", "5 mm in front of the tip", "10 mm in front of the tip"),
+                           row["interior"]):
+            lines.append(f"| {name} | {_fmt(r)} | {r['gci_vector_mm']:.3f} | {r['bound_medium_mm']:.3f} | "
+                         f"{r['bound_coarse_mm']:.3f} |" + more(r))
         for zone in ("near_tip", "rest"):
             z = row[f"surface_{zone}"]
             label = f"surface < {NEAR_TIP_MM:g} mm from the tip" if zone == "near_tip" else "surface, the rest"
             for stat in ("max", "p95", "mean"):
                 lines.append(f"| {label}: {stat} | {_fmt(z[stat])} | | | |" + " |" * len(keys))
             g, b, c = z["gci_mm"], z["bound_medium_mm"], z["bound_coarse_mm"]
-            lines.append(f"| {label}: pointwise band ({z['n_points']} points) | max {g['max']:.3f}, p95 {g['p95']:.3f}, "
-                         f"mean {g['mean']:.3f} | | | | | | max {b['max']:.3f}, p95 {b['p95']:.3f} | "
+            lines.append(f"| {label}: pointwise band ({z['n_points']} points) | max {g['max']:.3f}, p95 "
+                         f"{g['p95']:.3f}, mean {g['mean']:.3f} | | | | | | max {b['max']:.3f}, p95 {b['p95']:.3f} | "
                          f"max {c['max']:.3f}, p95 {c['p95']:.3f} |" + more(z, summary=True))
         a = row["all_nodes"]
         g, b, c = a["gci_mm"], a["bound_medium_mm"], a["bound_coarse_mm"]
         lines.append(f"| every node: pointwise band ({a['n_points']} points) | max {g['max']:.3f}, "
                      f"p95 {g['p95']:.3f}, mean {g['mean']:.3f} | {a['mean_kind']} | | | | | "
-                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} | max {c['max']:.3f}, p95 {c['p95']:.3f} |" + more(a, summary=True))
+                     f"max {b['max']:.3f}, p95 {b['p95']:.3f} | max {c['max']:.3f}, p95 {c['p95']:.3f} |"
+                     + more(a, summary=True))
         lines.append("")
     lines += [f"![convergence]({image})", ""]
     return "\n".join(lines)
@@ -128,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     add_scene_flag(ap)
     add_scales_flag(ap, [1.69, 1.3, 1.0], "size multipliers, coarsest first")
     ap.add_argument("--guide", choices=("contact", "glued"),
-                    help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: the scene's)")
+                    help="the guide-wall model: the rigid tip in frictionless contact, or the glued patch (default: "
+                         "the scene's)")
     ap.add_argument("--step-mm", type=number("--step-mm", minimum=1e-3),
                     help="load step along each path (default: the scene's solver.max_step_mm)")
     ap.add_argument("--volumetric", choices=VOLUMETRIC,
@@ -142,8 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     t0 = time.perf_counter()
-    scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact", step_mm=args.step_mm,
-                        volumetric=args.volumetric)
+    scene = study_scene(args.scene, contact=None if args.guide is None else args.guide == "contact",
+                        step_mm=args.step_mm, volumetric=args.volumetric)
     name, folder = names(scene)
     name, out = args.name or name, args.out or Path("runs") / folder
     raw = run_study(scene, args.scales, out, tuple(args.cases or HARD_CASES))
@@ -154,9 +162,11 @@ def main(argv: list[str] | None = None) -> int:
         "probes": {k: v for k, v in raw["probes"].items() if k not in BIG}, "analysis": result}
     path = results.write(name, json_ready(small), publish=args.publish)
     plot(raw, result, path.with_suffix(".png"))
-    (out / "report.md").write_text(markdown(json_ready(result), results.command(), seconds, image=str(path.with_suffix(".png"))))
+    (out / "report.md").write_text(markdown(json_ready(result), results.command(), seconds,
+                                            image=str(path.with_suffix(".png"))))
     print_bounds(result)
-    print(f"wrote {path}, {path.with_suffix('.png')} and {out / 'report.md'} ({time.perf_counter() - t0:.0f} s this run)")
+    print(f"wrote {path}, {path.with_suffix('.png')} and {out / 'report.md'} "
+          f"({time.perf_counter() - t0:.0f} s this run)")
     return 0
 
 

@@ -26,7 +26,8 @@ from fem_offline.sweep import grid, run_sweep
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies dask-scaling", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies dask-scaling", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="fem_offline/scenes/grid_study_base.toml")
     ap.add_argument("--angles", type=int, default=4, help="paths in the reduced grid (angles 0, 1, ... deg)")
     ap.add_argument("--to-mm", type=float, default=2.0)
@@ -40,7 +41,8 @@ def main(argv: list[str] | None = None) -> int | None:
                                           "displacement_max_mm": args.to_mm})
     scene = full.model_copy(update={"sweep": sweep})
     n_paths, n_steps = len(grid(scene)), len(scene.sweep.displacements_mm)
-    print(f"{full.name}: {n_paths} paths x {n_steps} steps of {scene.sweep.displacement_step_mm:g} mm on a LocalCluster")
+    print(f"{full.name}: {n_paths} paths x {n_steps} steps of {scene.sweep.displacement_step_mm:g} mm "
+          "on a LocalCluster")
     wall = {}
     for w in args.workers:
         with tempfile.TemporaryDirectory() as tmp, LocalCluster(n_workers=w, threads_per_worker=1, processes=True,
@@ -51,8 +53,10 @@ def main(argv: list[str] | None = None) -> int | None:
             per_path = sum(r.seconds for r in manifest.snapshots) / n_paths
         print(f"  {w} worker(s): {wall[w]:.1f} s wall, {manifest.n_done} snapshots, one path {per_path:.1f} s "
               f"(solver time), speed-up {wall[args.workers[0]] / wall[w]:.2f}x")
-    full_paths = len([p for p in grid(full) if p[0].angle_deg >= 0]) if full.sweep.angle_min_deg < 0 else len(grid(full))
-    print(f"projection for the full grid ({full_paths} solved paths): sweep time = ceil({full_paths} / workers) x one path:")
+    full_paths = (len([p for p in grid(full) if p[0].angle_deg >= 0]) if full.sweep.angle_min_deg < 0
+                  else len(grid(full)))
+    print(f"projection for the full grid ({full_paths} solved paths): "
+          f"sweep time = ceil({full_paths} / workers) x one path:")
     for cores in (2, 4, 8, 11, 16):
         print(f"  {cores:2d} single-threaded workers (e.g. {math.ceil(cores / 2)} machines like this one): "
               f"{math.ceil(full_paths / cores)} path(s) in a row")

@@ -60,7 +60,8 @@ def tag(sizes) -> str:
 def command(sizes, args, cases) -> str:
     """The command that judges one mesh as this run did (the file merges meshes of several runs)."""
     return shlex.join(["python", "-m", "studies", "graded-mesh", "--sizes", tag(sizes).replace("_", ":"),
-                       "--scene", str(args.scene), "--study", str(args.study), "--scales", *(f"{s:g}" for s in args.scales),
+                       "--scene", str(args.scene), "--study", str(args.study), "--scales",
+                       *(f"{s:g}" for s in args.scales),
                        "--cases", *map(case_text, cases)] + (["--publish"] if args.publish else []))
 
 
@@ -105,7 +106,8 @@ def judge(scene, sizes, study: Path, scales: list[float], cases, out: Path) -> d
                                    "gap_mm": float(at["prostate_surface"][worst] - surface_band[worst]),
                                    "to_tip_mm": float(np.linalg.norm(probes["prostate_surface"][worst] - tip)),
                                    "point_mm": probes["prostate_surface"][worst].round(2).tolist()},
-            "surface_own_nodes_mm": {"max": float(e_own[surface].max()), "near_tip_max": float(e_own[surface[near_own]].max()),
+            "surface_own_nodes_mm": {"max": float(e_own[surface].max()),
+                                     "near_tip_max": float(e_own[surface[near_own]].max()),
                                      "rest_max": float(e_own[surface[~near_own]].max())},
             "all_nodes_mm": float(e_own.max()), "all_nodes_probes_mm": float(at["nodes"].max())}
     return row

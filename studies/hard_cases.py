@@ -3,12 +3,12 @@
     python -m studies hard-cases [--elements mean_dilatation taylor_hood] [--workers 2] [--publish]
 
 The box is a product of stiffness factors of the nominal E, the scene's [materials] ranges over its tissues' E
-(fem_offline/scenes/patient_box.toml: prostate x0.4-1.6, adipose x0.5-1.6, rectal wall x0.1-1.2, bladder x0.3-3): its 16 corners and the centres of its 8 faces (one tissue at an end, the
-others at the geometric centre of their ranges), each at beta = 0 and 10 deg. The phantom is mirror-symmetric, so
-beta = -10 deg is the mirror image of +10 (tests/fem_offline/fe/test_contact.py::test_mirror_symmetry_with_contact):
-the same push reached, the same det F, mirrored; --angles -10 0 10 solves it anyway. Each is a load-stepped path from
-rest to the scene's largest push (default.toml: 10 mm in 0.25 mm steps, halved on failure) on the served model's
-mesh, once per element:
+(fem_offline/scenes/patient_box.toml: prostate x0.4-1.6, adipose x0.5-1.6, rectal wall x0.1-1.2, bladder x0.3-3): its 16
+corners and the centres of its 8 faces (one tissue at an end, the others at the geometric centre of their ranges), each
+at beta = 0 and 10 deg. The phantom is mirror-symmetric, so beta = -10 deg is the mirror image of +10
+(tests/fem_offline/fe/test_contact.py::test_mirror_symmetry_with_contact): the same push reached, the same det F,
+mirrored; --angles -10 0 10 solves it anyway. Each is a load-stepped path from rest to the scene's largest push
+(default.toml: 10 mm in 0.25 mm steps, halved on failure) on the served model's mesh, once per element:
 
 - "mean_dilatation", the scene's: P2 displacement with a constant pressure and volume ratio per tet (the three-field
   u-p-J element of Simo, Taylor and Pister, condensed per element; fe/elasticity.py), and a contact penalty that
@@ -74,7 +74,8 @@ def box_points(box: dict[str, tuple[float, float]]) -> list[tuple[str, dict[str,
 
 def formulation(scene, element: str, contact_per_mm: float | None = None):
     """The scene with the element; Taylor-Hood with the fixed contact penalty (models/default's formulation), the
-    other elements with k = contact_per_mm x the stiffest deforming tissue's E (default: the scene's guide.contact_stiffness_per_mm)."""
+    other elements with k = contact_per_mm x the stiffest deforming tissue's E (default: the scene's
+    guide.contact_stiffness_per_mm)."""
     per_mm = contact_per_mm if contact_per_mm is not None else scene.guide.contact_stiffness_per_mm
     guide = scene.guide.model_copy(update={"contact_stiffness_per_mm": None if element == "taylor_hood" else per_mm})
     return scene.model_copy(update={"solver": scene.solver.model_copy(update={"volumetric": element}), "guide": guide})
@@ -128,7 +129,8 @@ def solve_one(scene_path: str, mesh_path: str | None, element: str, factors: dic
     mesh = load_or_build_mesh(scene, mesh_path)
     problem = build_problem(scene, mesh)
     sweep = scene.sweep
-    pushes = np.arange(1, round(sweep.displacement_max_mm / sweep.displacement_step_mm) + 1) * sweep.displacement_step_mm
+    n_steps = round(sweep.displacement_max_mm / sweep.displacement_step_mm)
+    pushes = np.arange(1, n_steps + 1) * sweep.displacement_step_mm
     row = {"element": element, "factors": factors, "angle_deg": angle_deg, "n_tets": int(len(mesh.tets)),
            "target_mm": float(pushes[-1]), "reached_mm": 0.0, "load_steps": 0, "halvings": 0, "newton_iterations": 0,
            "factorizations": 0, "penetration_mm": 0.0, "failure": ""}
@@ -197,12 +199,13 @@ def run_gci(out: Path, element: str, scales: list[float], workers: int, scene: P
     markers = markers.nodes[markers.node_sets["markers"]]
     folder = out / "gci" / element
     folder.mkdir(parents=True, exist_ok=True)
-    todo = [(name, s) for name in GCI_POINTS for s in scales if not (folder / f"{name.replace(' ', '_')}_x{s:g}.json").exists()]
+    todo = [(name, s) for name in GCI_POINTS
+            for s in scales if not (folder / f"{name.replace(' ', '_')}_x{s:g}.json").exists()]
     if todo:
         os.environ.setdefault("MKL_NUM_THREADS", "1" if workers > 1 else os.environ.get("MKL_NUM_THREADS", "2"))
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(solve_one, str(scene), None, element, GCI_POINTS[name], angle_deg, s, markers): (name, s)
-                       for name, s in todo}
+            futures = {pool.submit(solve_one, str(scene), None, element, GCI_POINTS[name], angle_deg, s, markers):
+                       (name, s) for name, s in todo}
             for f in tqdm(as_completed(futures), total=len(futures), desc="GCI", unit="solve"):
                 name, s = futures[f]
                 (folder / f"{name.replace(' ', '_')}_x{s:g}.json").write_text(json.dumps(f.result(), indent=1) + "\n")
@@ -222,7 +225,8 @@ def run_gci(out: Path, element: str, scales: list[float], workers: int, scene: P
         one["markers_mm"] = {"gci_fine_max_mm": float(band.max()), "kind": mean.kind, "order": mean.order,
                              "fine_max_abs_mm": float(np.linalg.norm(rows[-1]["probes_mm"], axis=1).max())}
         report[name] = {"levels": [{k: x[k] for k in ("n_tets", "seconds", "min_det_f", "min_volume_ratio",
-                                                       "min_det_f_at", "reached_mm", "newton_iterations")} for x in rows],
+                                                       "min_det_f_at", "reached_mm", "newton_iterations")}
+                                   for x in rows],
                         "scales": scales, **one}
     return report
 
@@ -299,13 +303,13 @@ def markdown(rows: list[dict], box: dict, angles) -> str:
     for element in elements:
         mine = [r for r in rows if r["element"] == element]
         solved = sum(r["solved"] for r in mine)
-        lines.append(f"- **{element}**: {len(mine)} of the {total} solves run; {solved} of {len(mine)} reach the full push; smallest det F "
-                     f"{min(r['min_det_f'] for r in mine):.3f}, smallest tet volume ratio "
+        lines.append(f"- **{element}**: {len(mine)} of the {total} solves run; {solved} of {len(mine)} reach the full "
+                     f"push; smallest det F {min(r['min_det_f'] for r in mine):.3f}, smallest tet volume ratio "
                      f"{min(r['min_volume_ratio'] for r in mine):.3f}; {sum(r['seconds'] for r in mine) / 60:.0f} "
                      f"min in all, median {np.median([r['seconds'] for r in mine]):.0f} s a solve.")
-    lines += ["", "| point | beta | " + " | ".join(f"{e}: reached (mm) | steps / halvings | Newton | min det F (tissue) "
-                                                    f"| min theta_e | gap left (mm) | s" for e in elements) + " |",
-              "|---|---|" + "---|---|---|---|---|---|---|" * len(elements)]
+    lines += ["", "| point | beta | " + " | ".join(f"{e}: reached (mm) | steps / halvings | Newton | min det F "
+                                                    f"(tissue) | min theta_e | gap left (mm) | s" for e in elements)
+              + " |", "|---|---|" + "---|---|---|---|---|---|---|" * len(elements)]
     for point in points:
         for angle in angles:
             cells = []

@@ -21,7 +21,7 @@ row names the study it was judged against: rows of earlier rounds, against the p
 The phantom is grid_study_base.toml's (the study's scene). The result labelmap_truth goes to runs/results/;
 with --publish to docs/results/ and to the pipeline's package copy, pipeline/data/labelmap_fe_error.json
 (the patient build's default FE estimate), so that the two never differ.
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -71,11 +71,12 @@ def label_map_scene(*, spacing_mm: float, mesher: str, facet_voxels: float | Non
 def main(argv: list[str] | None = None) -> int | None:
     from fem_offline.scene import VOLUMETRIC
 
-    ap = argparse.ArgumentParser(prog="python -m studies labelmap-truth", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies labelmap-truth", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), nargs="+", default=[1.0])
     ap.add_argument("--mesher", default="cgal", choices=("cgal", "tetgen"))
-    ap.add_argument("--facet-distance-voxels", type=number("--facet-distance-voxels", minimum=0.0), nargs="+", default=[0.5],
-                    help="CGAL's label_map.facet_distance_voxels, one run each")
+    ap.add_argument("--facet-distance-voxels", type=number("--facet-distance-voxels", minimum=0.0), nargs="+",
+                    default=[0.5], help="CGAL's label_map.facet_distance_voxels, one run each")
     ap.add_argument("--volumetric", choices=VOLUMETRIC,
                     help="the element (solver.volumetric; default: patient.toml's)")
     ap.add_argument("--work", type=Path, default=Path("runs/labelmap_truth"))
@@ -107,7 +108,8 @@ def main(argv: list[str] | None = None) -> int | None:
     for k, p in probes.items():
         _, fine[k], band[k], _ = converged_estimate(args.study, args.scales, CASE, p, order)
     # the same bound for the phantom's own gmsh mesh at the same sizes (the study's scale-1 level), for comparison
-    medium_bound = {k: float((np.linalg.norm(level_solution(args.study, 1.0, CASE, p) - fine[k], axis=1) + band[k]).max())
+    medium_bound = {k: float((np.linalg.norm(level_solution(args.study, 1.0, CASE, p) - fine[k], axis=1)
+                              + band[k]).max())
                     for k, p in probes.items()}
     fine_tets = len(read_mesh(args.study / f"mesh_{used[-1]:g}.npz").tets)
     out = {"case": CASE_KEY, "rows": []}
@@ -116,7 +118,8 @@ def main(argv: list[str] | None = None) -> int | None:
     volumetric = args.volumetric or load_scene(SCENES / "patient.toml").solver.volumetric
     runs = [(s, f) for s in args.spacing_mm for f in (args.facet_distance_voxels if args.mesher == "cgal" else [None])]
     for spacing, facet in tqdm(runs, desc="label maps", unit="run"):
-        # a folder per element: a path's checkpoints belong to its physics (the pointwise rows' folders keep their names)
+        # a folder per element: a path's checkpoints belong to its physics
+        # (the pointwise rows' folders keep their names)
         folder = args.work / (f"{spacing:g}mm_{args.mesher}" + (f"_facet{facet:g}" if facet else "")
                               + ("" if volumetric == "pointwise" else f"_{volumetric}"))
         scene = label_map_scene(spacing_mm=spacing, mesher=args.mesher, facet_voxels=facet, volumetric=volumetric,
@@ -132,7 +135,8 @@ def main(argv: list[str] | None = None) -> int | None:
                   "volumetric": scene.solver.volumetric, **reference, "tets": len(mesh.tets),
                   "nodes": len(mesh.nodes), "mesh_mm": scene.mesh.model_dump(), "mesh_s": mesh_s, "solve_s": seconds,
                   "regions": {}}
-        label = f"{spacing:g} mm voxels, {args.mesher}" + (f" (facets {facet:g} voxel)" if facet else "") + f", {len(mesh.tets):,} tets"
+        facets = f" (facets {facet:g} voxel)" if facet else ""
+        label = f"{spacing:g} mm voxels, {args.mesher}{facets}, {len(mesh.tets):,} tets"
         for k, p in probes.items():
             diff = np.linalg.norm(at_points(mesh, u, p) - fine[k], axis=1)
             bound = diff + band[k]
@@ -145,7 +149,8 @@ def main(argv: list[str] | None = None) -> int | None:
         out["rows"].append(result)
     key = lambda r: (r["spacing_mm"], r["mesher"], r["facet_distance_voxels"], r["volumetric"])  # noqa: E731
     folder = results.DOCS_RESULTS if args.publish else results.RUNS_RESULTS
-    if (folder / "labelmap_truth.json").exists():  # rows of earlier runs (other voxels, meshers, facets, elements) are kept
+    # rows of earlier runs (other voxels, meshers, facets, elements) are kept
+    if (folder / "labelmap_truth.json").exists():
         done = {key(r) for r in out["rows"]}
         out["rows"] = [r for r in results.read("labelmap_truth", folder)["rows"] if key(r) not in done] + out["rows"]
     out["rows"].sort(key=lambda r: (r["volumetric"] != "taylor_hood", r["mesher"], -r["spacing_mm"],

@@ -27,7 +27,8 @@ from fem_offline.fe.problem import build_problem
 from fem_offline.scene import load_scene
 from studies import results
 from studies.options import SERVED_SCENE, add_scene_flag, json_ready
-from fem_offline.fe.validity import (PROBE_INTORDER, bounded_min_det_f, det_f_curves, linear_bound_table, points_per_tet,
+from fem_offline.fe.validity import (PROBE_INTORDER, bounded_min_det_f, det_f_curves, linear_bound_table,
+                                     points_per_tet,
                                   probed_min_det_f, recorded_min_det_f, table_validity, tissue_along_axis, valid_up_to)
 
 
@@ -42,9 +43,11 @@ def _nonlinear(folder: Path, scene):
 
 def _summary(curves) -> dict:
     return {"valid_up_to_mm": valid_up_to(curves),
-            "first_inversion_mm": min((c.first_inversion_mm for c in curves if c.first_inversion_mm is not None), default=None),
+            "first_inversion_mm": min((c.first_inversion_mm for c in curves if c.first_inversion_mm is not None),
+                                      default=None),
             "min_det_f_at_max": min(c.min_det_f[-1] for c in curves),
-            "n_inverted_tets_at_max": [min(c.n_inverted_tets[-1] for c in curves), max(c.n_inverted_tets[-1] for c in curves)]}
+            "n_inverted_tets_at_max": [min(c.n_inverted_tets[-1] for c in curves),
+                                       max(c.n_inverted_tets[-1] for c in curves)]}
 
 
 def _table_summary(displacements_mm, table) -> dict:
@@ -57,14 +60,16 @@ def _as_the_sweep_records(displacements_mm, curves, dense, everywhere) -> dict:
     """What a linear sweep of this grid writes in its manifest's validity: a snapshot is inverted when det F
     is <= 0 at the solver's points, at the probe points or somewhere in a tet (its bound; fem_offline.sweep,
     contracts.sweep.validity_of)."""
-    table = np.minimum.reduce([np.stack([c.min_det_f for c in curves]), np.stack([c.min_det_f for c in dense]), everywhere])
+    table = np.minimum.reduce([np.stack([c.min_det_f for c in curves]), np.stack([c.min_det_f for c in dense]),
+                               everywhere])
     return {**_table_summary(displacements_mm, table), "n_inverted": int((table <= 0).sum())}
 
 
 def study(scene_path: Path, sweep: Path | None, intorder: int) -> dict:
     scene = load_scene(scene_path)
     manifest, mesh = _nonlinear(sweep, scene) if sweep is not None else (None, mesh_for_scene(scene))
-    problem = build_problem(load_scene(scene_path, effects={"geometric_nonlinearity": False, "guide_contact": False}), mesh)
+    problem = build_problem(load_scene(scene_path, effects={"geometric_nonlinearity": False, "guide_contact": False}),
+                            mesh)
     grid = scene.sweep
     curves = det_f_curves(problem, grid.displacements_mm, grid.angles_deg)
     dense = det_f_curves(problem, grid.displacements_mm, grid.angles_deg, intorder=intorder)
@@ -121,7 +126,8 @@ def _proved(summary: dict) -> str:
 
 def markdown(s: dict) -> str:
     d_max, step = s["displacements_mm"][-1], s["displacements_mm"][1] - s["displacements_mm"][0]
-    lin, dp, nl, sw, ev = s["linear"], s["denser_points"], s.get("nonlinear"), s["linear_sweep_validity"], s["everywhere"]
+    lin, dp, nl = s["linear"], s["denser_points"], s.get("nonlinear")
+    sw, ev = s["linear_sweep_validity"], s["everywhere"]
     wall = ", ".join(f"{r['tissue']} {r['from']:g}–{r['to']:g} mm" for r in s["tissue_along_axis_mm"])
     lines = [
         "# Up to which guide displacement the linear model is a deformation",
@@ -130,24 +136,25 @@ def markdown(s: dict) -> str:
         f"({len(s['displacements_mm'])} displacements every {step:g} mm × {len(s['angles_deg'])} angles "
         f"{s['angles_deg'][0]:g}..{s['angles_deg'][-1]:g}°). ",
         "",
-        f"**The linear (small-strain) model with the glued guide patch (the superposable one; with the tip in contact the linear model is load-stepped, fem_offline/fe/contact.py) stays valid, det(I + ∇u) > 0 at every quadrature point at every angle, "
-        f"up to {lin['valid_up_to_mm']:g} mm of guide push.** Its first element turns inside out at "
-        f"{lin['first_inversion_mm']:g} mm (bisection on det F's cubic in d); at {d_max:g} mm min det F is "
-        f"{lin['min_det_f_at_max']:g} with {lin['n_inverted_tets_at_max'][0]}–{lin['n_inverted_tets_at_max'][1]} tets "
-        f"inverted, all within {max(r['farthest_from_tip_mm'] for r in s['angles']):g} mm of the guide tip "
-        f"(centroids). These are the points the solver integrates at (4 per tet).",
-        "",
+        "**The linear (small-strain) model with the glued guide patch (the superposable one; with the tip in contact "
+        "the linear model is load-stepped, fem_offline/fe/contact.py) stays valid, det(I + ∇u) > 0 at every "
+        f"quadrature point at every angle, up to {lin['valid_up_to_mm']:g} mm of guide push.** Its first element turns "
+        f"inside out at {lin['first_inversion_mm']:g} mm (bisection on det F's cubic in d); at {d_max:g} mm min det F "
+        f"is {lin['min_det_f_at_max']:g} with {lin['n_inverted_tets_at_max'][0]}–{lin['n_inverted_tets_at_max'][1]} "
+        f"tets inverted, all within {max(r['farthest_from_tip_mm'] for r in s['angles']):g} mm of the guide tip "
+        "(centroids). These are the points the solver integrates at (4 per tet).", "",
         f"Along the guide axis (β = 0) from the tip: {wall}.",
         "",
     ]
     if nl is not None:
         lines += [f"The nonlinear (neo-Hookean) sweep on the same mesh ({nl['sweep']}, {nl['n_snapshots']} snapshots) "
-                  f"stays valid at those points everywhere: min det F {nl['min_det_f']:g} as its snapshots record it.", ""]
+                  f"stays valid at those points everywhere: min det F {nl['min_det_f']:g} as its snapshots record it.",
+                  ""]
     dense_nl = dp.get("nonlinear")
     lines += [f"**Between those points the P2 field inverts earlier.** At the {dp['points_per_tet']} points per tet of "
               f"the degree-{dp['intorder']} rule the linear model is valid up to {dp['linear']['valid_up_to_mm']:g} mm "
-              f"(first inversion {dp['linear']['first_inversion_mm']:g} mm; min det F {dp['linear']['min_det_f_at_max']:g} "
-              f"at {d_max:g} mm)"
+              f"(first inversion {dp['linear']['first_inversion_mm']:g} mm; min det F "
+              f"{dp['linear']['min_det_f_at_max']:g} at {d_max:g} mm)"
               + (f", and the nonlinear snapshots up to {dense_nl['valid_up_to_mm']:g} mm (min det F "
                  f"{dense_nl['min_det_f_at_max']:g} at {d_max:g} mm): the solver keeps det F > 0 only where it "
                  f"integrates." if dense_nl else "."),
@@ -161,43 +168,49 @@ def markdown(s: dict) -> str:
               + (f". The nonlinear snapshots: {_proved(ev['nonlinear'])}." if ev.get("nonlinear") else "."),
               "",
               f"`fem_offline sweep` records min det F at both sets of points and its bound everywhere with every "
-              f"snapshot and counts a snapshot as inverted when any is <= 0: a linear sweep of this grid has {sw['n_inverted']} of "
-              f"{sw['n_snapshots']} snapshots inverted, the first {_span(sw['first_inverted_mm'])}, and is valid up "
-              f"to {sw['valid_up_to_mm']:g} mm at every angle; `training fit` fits it only up to there and cuts the "
-              f"model's envelope there.", ""]
-    head = "| β (°) | first inversion (mm) | linear min det F at {0:g} mm | inverted tets at {0:g} mm | where | farthest from tip (mm) |"
+              "snapshot and counts a snapshot as inverted when any is <= 0: a linear sweep of this grid has "
+              f"{sw['n_inverted']} of {sw['n_snapshots']} snapshots inverted, the first "
+              f"{_span(sw['first_inverted_mm'])}, and is valid up to {sw['valid_up_to_mm']:g} mm at every angle; "
+              f"`training fit` fits it only up to there and cuts the model's envelope there.", ""]
+    head = ("| β (°) | first inversion (mm) | linear min det F at {0:g} mm | inverted tets at {0:g} mm | where "
+            "| farthest from tip (mm) |")
     lines += [head.format(d_max) + (f" nonlinear min det F at {d_max:g} mm |" if nl else ""),
               "|---|---|---|---|---|---|" + ("---|" if nl else "")]
     for r in s["angles"]:
         where = ", ".join(f"{k} {v}" for k, v in r["inverted_tissues_at_max"].items()) or "–"
         first = "–" if r["first_inversion_mm"] is None else f"{r['first_inversion_mm']:g}"
         lines.append(f"| {r['angle_deg']:g} | {first} | {r['min_det_f_at_max']:g} | {r['n_inverted_tets_at_max']} | "
-                     f"{where} | {r['farthest_from_tip_mm']:g} |" + (f" {r['nonlinear_min_det_f_at_max']:g} |" if nl else ""))
+                     f"{where} | {r['farthest_from_tip_mm']:g} |"
+                     + (f" {r['nonlinear_min_det_f_at_max']:g} |" if nl else ""))
     picks = s["angles"][::5]
-    lines += ["", "min det F at the solver's points against displacement, every 1 mm (linear; nonlinear in brackets):", "",
-              "| d (mm) | " + " | ".join(f"β = {r['angle_deg']:g}°" for r in picks) + " |", "|---|" + "---|" * len(picks)]
+    lines += ["", "min det F at the solver's points against displacement, every 1 mm (linear; nonlinear in brackets):",
+              "", "| d (mm) | " + " | ".join(f"β = {r['angle_deg']:g}°" for r in picks) + " |",
+              "|---|" + "---|" * len(picks)]
     for j, d in enumerate(s["displacements_mm"]):
         if abs(d - round(d)) < 1e-9:
-            cells = [f"{r['linear_min_det_f'][j]:g}" + (f" ({r['nonlinear_min_det_f'][j]:g})" if nl else "") for r in picks]
+            cells = [f"{r['linear_min_det_f'][j]:g}" + (f" ({r['nonlinear_min_det_f'][j]:g})" if nl else "")
+                     for r in picks]
             lines.append(f"| {d:g} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies linear-validity", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies linear-validity", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_flag(ap, SERVED_SCENE, "the scene (default: the served model's)")
     ap.add_argument("--sweep", type=Path, help="the scene's nonlinear sweep folder (its mesh and recorded min det F)")
     results.add_publish_flag(ap)
-    ap.add_argument("--intorder", type=number("--intorder", int, minimum=1), default=PROBE_INTORDER, help="a denser quadrature rule to probe det F "
-                    f"between the solver's points (default {PROBE_INTORDER}, the sweep's probe: 11 points per tet; the "
-                    "solver's rule has 4)")
+    ap.add_argument("--intorder", type=number("--intorder", int, minimum=1), default=PROBE_INTORDER, help="a denser "
+                    f"quadrature rule to probe det F between the solver's points (default {PROBE_INTORDER}, the "
+                    "sweep's probe: 11 points per tet; the solver's rule has 4)")
     args = ap.parse_args(argv)
     s = study(args.scene, args.sweep, args.intorder)
     path = results.write("linear_validity", {**s, "report_md": markdown(s)}, publish=args.publish)
     lin, worst = s["linear"], min(s["angles"], key=lambda r: r["min_det_f_at_max"])
     line = (f"linear model valid up to {lin['valid_up_to_mm']:g} mm at every angle (first inversion "
             f"{lin['first_inversion_mm']:g} mm); at {s['displacements_mm'][-1]:g} mm min det F "
-            f"{worst['min_det_f_at_max']:g} (beta {worst['angle_deg']:g} deg, {worst['n_inverted_tets_at_max']} tets inverted)")
+            f"{worst['min_det_f_at_max']:g} (beta {worst['angle_deg']:g} deg, "
+            f"{worst['n_inverted_tets_at_max']} tets inverted)")
     if "nonlinear" in s:
         line += f"; nonlinear min det F {s['nonlinear']['min_det_f']:g} over {s['nonlinear']['n_snapshots']} snapshots"
     dp = s["denser_points"]
@@ -206,8 +219,8 @@ def main(argv: list[str] | None = None) -> int | None:
     ev = s["everywhere"]
     line += (f". Everywhere (bound): linear valid up to {ev['linear']['valid_up_to_mm']:g} mm"
              + (f", nonlinear {_proved(ev['nonlinear'])} ({ev['nonlinear']['seconds']:.1f} s for all, "
-                f"{1e3 * ev['nonlinear']['seconds'] / ev['nonlinear']['n_snapshots']:.0f} ms per snapshot with its file's "
-                f"reading)" if "nonlinear" in ev else ""))
+                f"{1e3 * ev['nonlinear']['seconds'] / ev['nonlinear']['n_snapshots']:.0f} ms per snapshot with its "
+                f"file's reading)" if "nonlinear" in ev else ""))
     sw = s["linear_sweep_validity"]
     print(line)
     print(f"as a linear sweep records it (any of the three): {sw['n_inverted']} of {sw['n_snapshots']} snapshots "

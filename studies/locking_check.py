@@ -122,11 +122,13 @@ def analyse(rows: list[dict], scales: list[float]) -> dict:
 
 def result_name(volumetric: str, poisson: list[float]) -> str:
     """locking_check_VOLUMETRIC, with _nuNNN (0.45: _nu045) when the scene's nu 0.495 is not among --poisson."""
-    return f"locking_check_{volumetric}" + ("" if NOMINAL_NU in poisson else "".join(f"_nu{nu:g}".replace(".", "") for nu in poisson))
+    suffix = "" if NOMINAL_NU in poisson else "".join(f"_nu{nu:g}".replace(".", "") for nu in poisson)
+    return f"locking_check_{volumetric}" + suffix
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies locking-check", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies locking-check", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_flag(ap)
     add_scales_flag(ap, [1.3, 1.0, 0.769, 0.5917, 0.455], "levels, coarsest first")
     ap.add_argument("--poisson", type=number("--poisson", minimum=0.0), nargs="+", default=[NOMINAL_NU, 0.45])
@@ -139,7 +141,8 @@ def main(argv: list[str] | None = None) -> int | None:
     ap.add_argument("--meshes", type=Path, default=Path("runs/convergence_resolve"),
                     help="the convergence study's folder: its level meshes are reused")
     ap.add_argument("--out", type=Path, default=Path("runs/locking"))
-    ap.add_argument("--name", help="the result's name (default: locking_check_VOLUMETRIC, _nuNNN for one nu other than 0.495)")
+    ap.add_argument("--name",
+                    help="the result's name (default: locking_check_VOLUMETRIC, _nuNNN for one nu other than 0.495)")
     results.add_publish_flag(ap)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")

@@ -30,7 +30,8 @@ def write_labelmap(scene, spacing_mm: float, folder: Path, *, fmt: str = "nii.gz
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies make-labelmap", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies make-labelmap", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", required=True, type=Path, help="a phantom scene")
     ap.add_argument("--spacing-mm", type=number("--spacing-mm", minimum=0.05), default=1.0)
     ap.add_argument("--out", required=True, type=Path, help="folder for labels.<format> and scene.toml")

@@ -13,7 +13,7 @@ the largest gap and the ratio at the markers, on the prostate surface and at eve
 displacement_std (--model, at the same sigma) is compared the same way. With n draws, a sample std is itself
 uncertain by about 1 / sqrt(2 (n - 1)) of its size (15 % at n = 24): the table says so. Each draw (solved or not) is saved
 under --out; a rerun solves only the missing ones.
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -137,8 +137,8 @@ def report(data: dict) -> str:
         worst = data["draws"][int(np.argmax(markers))]
         lines += ["", f"The first-order answer is within 0.02 mm of the fresh solve at the markers for "
                   f"{int((markers <= 0.02).sum())} of {len(markers)} draws; the worst, theta {worst['theta']}, is off "
-                  f"by {worst['first_order_error_markers_mm']:.4f} mm there and {worst['first_order_error_all_nodes_mm']:.3f} "
-                  "mm at its worst node."]
+                  f"by {worst['first_order_error_markers_mm']:.4f} mm there and "
+                  f"{worst['first_order_error_all_nodes_mm']:.3f} mm at its worst node."]
     if data["unsolved"]:
         lines += ["", f"{len(data['unsolved'])} draws found no equilibrium and are left out: "
                   + "; ".join(str(u["theta"]) for u in data["unsolved"])]

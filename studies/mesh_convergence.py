@@ -5,7 +5,7 @@
 Solves the same case on both meshes (linear and nonlinear) and evaluates the fine P2 solution at
 the coarse mesh's prostate-surface nodes (interpolation inside the containing fine tet).
 PARDISO's threads come from the caller's MKL_NUM_THREADS (e.g. 2 to use both cores of a small machine).
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -29,11 +29,13 @@ def _solve(scene, mesh, nonlinear: bool, d: float, beta: float, step_mm: float):
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies mesh-convergence", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies mesh-convergence", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, default=Path("fem_offline/scenes/grid_study_base.toml"))
     ap.add_argument("--displacement-mm", type=float, default=10.0)
     ap.add_argument("--angle-deg", type=float, default=10.0)
-    ap.add_argument("--step-mm", type=float, default=0.5, help="load step (hyperelastic: the end state does not depend on it)")
+    ap.add_argument("--step-mm", type=float, default=0.5,
+                    help="load step (hyperelastic: the end state does not depend on it)")
     ap.add_argument("--linear-only", action="store_true")
     args = ap.parse_args(argv)
     coarse_scene = load_scene(args.scene)
@@ -42,7 +44,8 @@ def main(argv: list[str] | None = None) -> int | None:
         "max_mm": sizes.max_mm / 2, "prostate_mm": sizes.prostate_mm / 2, "guide_mm": sizes.guide_mm / 2})})
     coarse, fine = mesh_for_scene(coarse_scene), mesh_for_scene(fine_scene)
     print(f"coarse {len(coarse.tets)} tets, fine {len(fine.tets)} tets")
-    probe = interpolation_matrix(fine.nodes, fine.tets, coarse.nodes[coarse.node_sets["prostate_surface"]])  # P2 transfer
+    surface = coarse.nodes[coarse.node_sets["prostate_surface"]]
+    probe = interpolation_matrix(fine.nodes, fine.tets, surface)  # P2 transfer
     for nonlinear in ([False] if args.linear_only else [False, True]):
         case = (nonlinear, args.displacement_mm, args.angle_deg, args.step_mm)
         uc, tc = _solve(coarse_scene, coarse, *case)
@@ -50,6 +53,6 @@ def main(argv: list[str] | None = None) -> int | None:
         at = probe @ uf
         err = np.linalg.norm(uc[coarse.node_sets["prostate_surface"]] - at, axis=1)
         peak = np.linalg.norm(at, axis=1).max()
-        print(f"{'nonlinear' if nonlinear else 'linear'} {args.displacement_mm} mm, beta {args.angle_deg} deg: prostate surface "
-              f"|u_coarse - u_fine| max {err.max():.3f} mm, mean {err.mean():.3f} mm (peak prostate motion {peak:.2f} mm); "
-              f"solve {tc:.0f} s coarse, {tf:.0f} s fine")
+        print(f"{'nonlinear' if nonlinear else 'linear'} {args.displacement_mm} mm, beta {args.angle_deg} deg: "
+              f"prostate surface |u_coarse - u_fine| max {err.max():.3f} mm, mean {err.mean():.3f} mm (peak prostate "
+              f"motion {peak:.2f} mm); solve {tc:.0f} s coarse, {tf:.0f} s fine")

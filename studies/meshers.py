@@ -2,7 +2,8 @@
 
 The phantom's exact geometry is the reference: tissue volumes from `reference_volumes`, and the
 linear answer (guide glued to its patch) at the gmsh phantom mesh's 8 markers for one push (10 mm, beta = 0).
-`python -m studies compare-meshers` prints these and writes the result meshers (runs/results/, or docs/results/ with --publish).
+`python -m studies compare-meshers` prints these and writes the result meshers
+(runs/results/, or docs/results/ with --publish).
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from fem_offline.labelmap.io import write_label_map
-from fem_offline.labelmap.quality import face_owner_counts, min_dihedral_deg, radius_ratio, signed_volumes, tissue_volumes
+from fem_offline.labelmap.quality import (face_owner_counts, min_dihedral_deg, radius_ratio, signed_volumes,
+                                          tissue_volumes)
 from fem_offline.scene import Scene, parse_scene
 from studies.phantom_labelmap import labelmap_scene, linear_markers, reference_volumes, voxelise
 
@@ -39,8 +41,10 @@ def label_map_scene(phantom_scene: Scene, spacing_mm: float, folder: Path, *, me
     return parse_scene(data)
 
 
-def corner_mesh_report(points: np.ndarray, tets: np.ndarray, tissue: np.ndarray, names, exact: dict[str, float]) -> dict[str, Any]:
-    """Validity, quality, volume errors (fraction of the exact volume) and conformity of corner tets (m, 4) as the mesher left them.
+def corner_mesh_report(points: np.ndarray, tets: np.ndarray, tissue: np.ndarray, names,
+                       exact: dict[str, float]) -> dict[str, Any]:
+    """Validity, quality, volume errors (fraction of the exact volume) and conformity of corner tets (m, 4)
+    as the mesher left them.
 
     Inverted: tets whose orientation is against the majority's (a mesher orients consistently).
     """

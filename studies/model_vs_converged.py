@@ -56,7 +56,8 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
         gap = np.linalg.norm(m - u1, axis=1)
         e = gap + band
         out["cases"][f"{case[0]:g} mm, {case[1]:g} deg"] = {
-            "scales": used, "mean_kind": order.kind, "mean_order": None if not np.isfinite(order.order) else float(order.order),
+            "scales": used, "mean_kind": order.kind,
+            "mean_order": None if not np.isfinite(order.order) else float(order.order),
             "regions": {k: {"end_to_end_max_mm": float(e[ids].max()), "gap_max_mm": float(gap[ids].max()),
                             "band_max_mm": float(band[ids].max()), "end_to_end_mean_mm": float(e[ids].mean())}
                         for k, ids in regions.items()},
@@ -71,7 +72,8 @@ def compare(model: Path, study: Path, scales: list[float], cases) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies model-vs-converged", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies model-vs-converged", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", type=Path, default=Path("models/default"))
     add_study_flags(ap)
     add_cases_flag(ap)
@@ -99,9 +101,9 @@ def main(argv: list[str] | None = None) -> int | None:
         r = row["regions"]
         worst = ", ".join(f"{k.replace('_', ' ')} {v['end_to_end_max_mm']:.3f}" for k, v in r.items())
         levels_used = " x".join(f"{s:g}" for s in row["scales"])
-        print(f"{case} (levels x{levels_used}), model vs converged ({args.element}), max |m - u_fine| + GCI in mm: {worst}; "
-              f"at the markers a gap of {r['markers']['gap_max_mm']:.3f} + a band up to {r['markers']['band_max_mm']:.3f}; "
-              f"mean |u| {row['mean_kind']}")
+        print(f"{case} (levels x{levels_used}), model vs converged ({args.element}), max |m - u_fine| + GCI in mm: "
+              f"{worst}; at the markers a gap of {r['markers']['gap_max_mm']:.3f} + a band up to "
+              f"{r['markers']['band_max_mm']:.3f}; mean |u| {row['mean_kind']}")
     print("max over the cases: " + ", ".join(f"{k} {v:.3f} mm" for k, v in result["max_over_cases"].items()))
     print(f"wrote {path}")
     return 0

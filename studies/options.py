@@ -55,8 +55,10 @@ def add_scales_flag(ap: argparse.ArgumentParser, default: list[float], what: str
 def add_study_flags(ap: argparse.ArgumentParser, *, scales: list[float] = TAYLOR_HOOD_SCALES) -> None:
     """--study (a convergence study's folder of meshes and checkpoints) and --scales (its levels)."""
     ap.add_argument("--study", type=Path, default=TAYLOR_HOOD_STUDY,
-                    help=f"a grid-convergence study's folder, meshes and path checkpoints (default {TAYLOR_HOOD_STUDY})")
-    add_scales_flag(ap, scales, "its levels, coarsest first; per case the three finest that solved it give the estimate")
+                    help=f"a grid-convergence study's folder, meshes and path checkpoints "
+                         f"(default {TAYLOR_HOOD_STUDY})")
+    add_scales_flag(ap, scales,
+                    "its levels, coarsest first; per case the three finest that solved it give the estimate")
 
 
 def parser(prog: str, doc: str) -> argparse.ArgumentParser:
@@ -78,7 +80,8 @@ def tolerance_arg(text: str) -> tuple[float, float]:
 
 
 def json_ready(x, digits: int | None = None):
-    """Arrays to lists, numpy scalars to Python, NaN/inf to null (strict JSON); floats to `digits` significant digits if given."""
+    """Arrays to lists, numpy scalars to Python, NaN/inf to null (strict JSON);
+    floats to `digits` significant digits if given."""
     if isinstance(x, dict):
         return {k: json_ready(v, digits) for k, v in x.items()}
     if isinstance(x, (list, tuple, np.ndarray)):

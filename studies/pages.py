@@ -19,7 +19,8 @@ BENCH_SERVICE = "bench_service"
 # The code a result describes, by the study's name prefix: a result older than the last commit that
 # touched these paths is flagged as possibly stale. The FE studies describe fem_offline; the model's
 # accuracy and the trade-off also training; the service benchmark the service.
-CODE_OF = (("bench_service", ("service", "models/default")), ("fe_error", ("fem_offline", "training", "models/default")),
+CODE_OF = (("bench_service", ("service", "models/default")),
+           ("fe_error", ("fem_offline", "training", "models/default")),
            ("tradeoff", ("fem_offline", "training")), ("sweep_density", ("fem_offline", "training")),
            ("", ("fem_offline",)))
 REGIONS = (("markers", "markers"), ("interior", "interior points"), ("prostate_surface", "prostate surface"),
@@ -84,7 +85,8 @@ def accuracy_table(manifest_path: Path = MANIFEST) -> str:
     m = json.loads(Path(manifest_path).read_text())
     acc = m["accuracy"]["regions"]
     materials = (m.get("materials") or {}).get("accuracy")
-    head = ["region", "surrogate vs its own FE (mm)", "FE vs converged estimate (mm)", "end to end, nominal stiffness (mm)"]
+    head = ["region", "surrogate vs its own FE (mm)", "FE vs converged estimate (mm)",
+            "end to end, nominal stiffness (mm)"]
     if materials:
         head += ["model vs fresh FE over the stiffness ranges (mm)", "end to end over the ranges (mm)"]
     rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -98,19 +100,20 @@ def accuracy_table(manifest_path: Path = MANIFEST) -> str:
             elif materials:
                 cells += ["—", "—"]
             rows.append("| " + " | ".join(cells) + " |")
-    rel = Path(manifest_path).resolve().relative_to(ROOT) if Path(manifest_path).resolve().is_relative_to(ROOT) else manifest_path
+    resolved = Path(manifest_path).resolve()
+    rel = resolved.relative_to(ROOT) if resolved.is_relative_to(ROOT) else manifest_path
     mesh = m["mesh"]
-    ranges = (" These are for the scene's exact stiffnesses; a patient's are uncertain, and one tissue's E x 1.25 moves "
-              "the markers by up to about 0.3 mm (docs site: Sensitivity to the materials), which this model cannot "
-              "take into account.")
+    ranges = (" These are for the scene's exact stiffnesses; a patient's are uncertain, and one tissue's E x 1.25 "
+              "moves the markers by up to about 0.3 mm (docs site: Sensitivity to the materials), which this model "
+              "cannot take into account.")
     rank = f"PCA rank {m['pca']['rank']}"
     if materials:
         unsolved = materials.get("unsolved") or []
-        left = (f"; at {len(unsolved)} more the FE found no equilibrium, so they are not compared (docs site: Materials "
-                "as inputs)" if unsolved else "")
-        ranges = (f" Over the stiffness ranges: the model against fresh FE solves at {materials['n_points']} material points "
-                  f"(`python -m training material-check`{left}). Each answer also carries the std its stiffness inputs' "
-                  "uncertainty gives (`std_mm`), which is not in this table.")
+        left = (f"; at {len(unsolved)} more the FE found no equilibrium, so they are not compared (docs site: "
+                "Materials as inputs)" if unsolved else "")
+        ranges = (f" Over the stiffness ranges: the model against fresh FE solves at {materials['n_points']} material "
+                  f"points (`python -m training material-check`{left}). Each answer also carries the std its stiffness "
+                  "inputs' uncertainty gives (`std_mm`), which is not in this table.")
         if m["pca"].get("n_primary"):
             rank += f": {m['pca']['n_primary']} for u, {m['pca']['rank'] - m['pca']['n_primary']} for the sensitivities"
     return "\n".join([
@@ -118,8 +121,9 @@ def accuracy_table(manifest_path: Path = MANIFEST) -> str:
         f"({mesh['n_tets']:,} tets, {mesh['n_nodes']:,} nodes, {rank}, "
         f"{m['network']['depth']}x{m['network']['width']} network). End to end = surrogate + FE: what a user of the "
         "answer faces, against the converged FE estimate." + ranges, "",
-        *rows, "", f"*Generated from* `{rel}` *(accuracy.regions; the model built {m['created_utc'][:10]} by* `make default-model`*) "
-        "by* `python -m studies readme`. *The FE column comes from docs/results/fe_error_default.json:* "
+        *rows, "", f"*Generated from* `{rel}` *(accuracy.regions; the model built {m['created_utc'][:10]} by* `make "
+        "default-model`*) by* `python -m studies readme`. *The FE column comes from "
+        "docs/results/fe_error_default.json:* "
         + _provenance_brief(load("fe_error_default"))])
 
 
@@ -138,7 +142,8 @@ def speed_table(folder: Path = DOCS_RESULTS) -> str:
         return ("The service benchmark has no committed result yet (`python -m bench service --publish` "
                 "writes docs/results/bench_service.json).")
     rows = ["| request | p50 (ms) | p99 (ms) | requests/s |", "|---|---|---|---|"]
-    rows += [f"| {r['what']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['req_s']:,.0f} |" for r in result["readme_rows"]]
+    rows += [f"| {r['what']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['req_s']:,.0f} |"
+             for r in result["readme_rows"]]
     return "\n".join([*rows, "", provenance_line(result).replace("*Measured by*", "*Generated from docs/results/"
                       "bench_service.json by* `python -m studies readme`; *measured by*", 1)])
 
@@ -152,8 +157,9 @@ def service_targets_table(folder: Path = DOCS_RESULTS) -> str:
     rows = ["| target | measured | met |", "|---|---|---|"]
     rows += [f"| {t['target']} | {t['value']} | {'yes' if t['met'] else '**no**'} |" for t in result["targets"]]
     versions = ", ".join(f"{k} {v}" for k, v in result.get("versions", {}).items()) or "not recorded"
-    load_ = f"load {result.get('load_at_start', '?'):.2f} at the start, {result.get('load_at_end', '?'):.2f} at the end" \
-        if isinstance(result.get("load_at_start"), float) and isinstance(result.get("load_at_end"), float) else "load not recorded"
+    recorded = isinstance(result.get("load_at_start"), float) and isinstance(result.get("load_at_end"), float)
+    load_ = (f"load {result.get('load_at_start', '?'):.2f} at the start, {result.get('load_at_end', '?'):.2f} at the "
+             "end" if recorded else "load not recorded")
     runs = result.get("repeats", 1)
     rows += ["", *cpu_table(result.get("cpu", []))]
     return "\n".join([*rows, "", f"Each row is the median of {runs} run(s) of {result.get('duration_s', '?')} s, the "
@@ -220,8 +226,10 @@ def rows_table(rows: list[dict], limit: int = 40, max_cols: int = 12) -> str:
     """Rows as a Markdown table: their identifying top-level scalars, then their millimetre figures
     (nested ones flattened as a.b), up to `max_cols` columns; every other value stays in the JSON."""
     flats = [flat(r) for r in rows]
-    ids = [k for k in flats[0] if "." not in k and not _is_error(k, flats[0][k]) and not str(flats[0][k]).startswith("python ")][:4]
-    mm = [k for k in dict.fromkeys(k for f in flats for k in f) if _is_error(k, next((f[k] for f in flats if k in f), None))]
+    ids = [k for k in flats[0] if "." not in k and not _is_error(k, flats[0][k])
+           and not str(flats[0][k]).startswith("python ")][:4]
+    mm = [k for k in dict.fromkeys(k for f in flats for k in f)
+          if _is_error(k, next((f[k] for f in flats if k in f), None))]
     cols = ids + mm[: max_cols - len(ids)]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     out += ["| " + " | ".join(_cell(f.get(c)) for c in cols) + " |" for f in flats[:limit]]
@@ -258,7 +266,8 @@ def convergence_table(result: dict) -> str:
                ("surface_rest", "rest of surface"), ("all_nodes", "every node"))
     out = [f"Levels: {head}; the band is the finest level's grid convergence index (Fs 1.25), max over the points, "
            f"in mm, from the three finest.", "",
-           "| case | " + " | ".join(r for _, r in regions) + " | convergence (every node) |", "|---|" + "---|" * (len(regions) + 1)]
+           "| case | " + " | ".join(r for _, r in regions) + " | convergence (every node) |",
+           "|---|" + "---|" * (len(regions) + 1)]
     for case, c in a["cases"].items():
         out.append(f"| {case} | " + " | ".join(_band(c[k]) for k, _ in regions)
                    + f" | {c['all_nodes'].get('mean_kind', '—')} |")

@@ -29,9 +29,11 @@ from fem_offline.geometry.mesh import load
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies paper-scale-snapshots", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies paper-scale-snapshots", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
-    ap.add_argument("--mesh", type=Path, required=True, help="the fine mesh (.npz, or any format fem_offline mesh writes)")
+    ap.add_argument("--mesh", type=Path, required=True,
+                    help="the fine mesh (.npz, or any format fem_offline mesh writes)")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--angle-stride", type=int, default=2, help="keep every n-th angle (default 2: 11 x 40 = 440)")
     args = ap.parse_args(argv)
@@ -52,7 +54,8 @@ def main(argv: list[str] | None = None) -> int | None:
             name = folder.snapshot_file(i, j)
             record = folder.CaseRecord(newton_iterations=src.newton_iterations, residual=src.residual,
                                        min_det_f=src.min_det_f, seconds=src.seconds)
-            folder.write_case(args.out / name, W @ source.displacement[k], displacement_mm=d, angle_deg=angle, record=record)
+            folder.write_case(args.out / name, W @ source.displacement[k], displacement_mm=d, angle_deg=angle,
+                              record=record)
             rows.append(folder.snapshot_record(args.out, name))
     grid = folder.Grid(displacements_mm=m.grid.displacements_mm, angles_deg=angles)
     folder.write_manifest(args.out, m.model_copy(update={

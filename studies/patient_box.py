@@ -25,13 +25,15 @@ from studies import results
 POPULATIONS = {
     "benign gland": {
         "prostate": (35.0, 0.3, "between the benign means 27.9 and 42.3 kPa; 27.9 +- 7.9 kPa is a std of ln E of 0.28"),
-        "rectal_wall": (60.0, 0.5, "assumed: no normal-wall range found; the tumour cutoffs measured against it span 27-112 kPa"),
+        "rectal_wall": (60.0, 0.5,
+                        "assumed: no normal-wall range found; the tumour cutoffs measured against it span 27-112 kPa"),
         "adipose": (8.3, 0.46, "9.24 +- 4.48 kPa (breast fat) as a log-normal: median 8.3, std of ln E 0.46"),
         "bladder": (100.38, 0.5, "assumed: the paper's E, no kPa range found"),
     },
     "cancer in the gland": {
         "prostate": (64.0, 0.3, "cancer medians and means 64.1 and 71.1 kPa"),
-        "rectal_wall": (60.0, 0.5, "as above"), "adipose": (8.3, 0.46, "as above"), "bladder": (100.38, 0.5, "as above"),
+        "rectal_wall": (60.0, 0.5, "as above"), "adipose": (8.3, 0.46, "as above"),
+        "bladder": (100.38, 0.5, "as above"),
     },
     "benign gland, twice the assumed spread": {
         "prostate": (35.0, 0.3, "as the benign gland"), "rectal_wall": (60.0, 1.0, "assumed, doubled"),
@@ -75,7 +77,8 @@ def report(data: dict) -> str:
              "|---|---|---|" + "---|" * len(data["tissues"])]
     for name, row in data["populations"].items():
         cells = [f"{row['tissues'][t]['median_kpa']:g} kPa, {row['tissues'][t]['std_ln_e']:g}" for t in data["tissues"]]
-        lines.append(f"| {name} | {100 * row['by_ratios']:.0f} % | {100 * row['by_absolute_e']:.0f} % | " + " | ".join(cells) + " |")
+        lines.append(f"| {name} | {100 * row['by_ratios']:.0f} % | {100 * row['by_absolute_e']:.0f} % | "
+                     + " | ".join(cells) + " |")
     first = next(iter(data["populations"].values()))
     lines += ["", "Where the medians and spreads come from: " + "; ".join(
         f"{t.replace('_', ' ')}: {v['from']}" for t, v in first["tissues"].items()) + "."]

@@ -46,7 +46,8 @@ def grid(phantom: Phantom, spacing_mm: float, direction: np.ndarray = DIRECTION)
 
 
 def tissue_at(phantom: Phantom, p: np.ndarray) -> np.ndarray:
-    """Label value (k,) at points p (k, 3): 0 adipose, LUMEN, or a LABELS value; phantom.PRIORITY where shapes overlap."""
+    """Label value (k,) at points p (k, 3): 0 adipose, LUMEN, or a LABELS value;
+    phantom.PRIORITY where shapes overlap."""
     x, y, z = p.T
     ph = phantom
     out = np.zeros(len(p), dtype=np.uint8)
@@ -86,7 +87,8 @@ def labelmap_scene(scene: Scene, label_map_path: str, *, name: str | None = None
 def reference_volumes(phantom: Phantom, spacing_mm: float = 0.2) -> dict[str, float]:
     """Tissue volumes (mm^3) of the exact phantom geometry, by voxel centres at spacing_mm, one z slice at a time."""
     bx, by, bz = phantom.block_mm
-    xs, ys = np.arange(-bx / 2, bx / 2, spacing_mm) + spacing_mm / 2, np.arange(-by / 2, by / 2, spacing_mm) + spacing_mm / 2
+    xs = np.arange(-bx / 2, bx / 2, spacing_mm) + spacing_mm / 2
+    ys = np.arange(-by / 2, by / 2, spacing_mm) + spacing_mm / 2
     x, y = (a.ravel() for a in np.meshgrid(xs, ys, indexing="ij"))
     counts = np.zeros(LUMEN + 1)
     for z in np.arange(0, bz, spacing_mm) + spacing_mm / 2:
@@ -95,7 +97,8 @@ def reference_volumes(phantom: Phantom, spacing_mm: float = 0.2) -> dict[str, fl
     return {name: float(c * spacing_mm**3) for name, c in volumes.items()}
 
 
-def linear_markers(scene: Scene, mesh, points_mm: np.ndarray, *, displacement_mm: float, angle_deg: float) -> np.ndarray:
+def linear_markers(scene: Scene, mesh, points_mm: np.ndarray, *, displacement_mm: float,
+                   angle_deg: float) -> np.ndarray:
     """Linear-model displacement (k, 3) mm at points (k, 3) for one guide push, P2-interpolated on `mesh`."""
     from contracts.interpolate import interpolation_matrix
 

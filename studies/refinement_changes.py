@@ -21,7 +21,8 @@ from studies.convergence import HARD_CASES, NEAR_TIP_MM, at_points, probe_points
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies refinement-changes", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies refinement-changes", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scales", type=float, nargs="+", default=[1.3, 1.0, 0.77], help="levels, coarsest first")
     ap.add_argument("--out", default="runs/convergence_contact")
     args = ap.parse_args(argv)

@@ -140,7 +140,8 @@ def run(model: Path, scene_path: Path, out: Path) -> dict:
             u0 = z["u_10"]
             s = {n: z[f"S_{n}_10"] for n in tissues}
         if kind == "E":
-            u = end_state(_problem(_variant(scene, factors={what: FACTOR}), mesh), 0.0, 10.0, out / f"E_{what}_x{FACTOR:g}.npy")
+            u = end_state(_problem(_variant(scene, factors={what: FACTOR}), mesh), 0.0, 10.0,
+                          out / f"E_{what}_x{FACTOR:g}.npy")
             fe, lin = probe.sizes(u - u0), probe.sizes(s[what] * np.log(FACTOR))
             miss = probe.sizes(u - u0 - s[what] * np.log(FACTOR))
             fe_check.append({"tissue": what, "factor": FACTOR, "fe_change_mm": fe, "first_order_change_mm": lin,
@@ -153,8 +154,8 @@ def run(model: Path, scene_path: Path, out: Path) -> dict:
                 poisson.append({"poisson": what, "failed": str(exc)[:300]})
     return {"kind": "sensitivity", "model": str(model), "scene": str(scene_path), "factor": FACTOR,
             "mesh": {"n_tets": len(mesh.tets), "n_nodes": len(mesh.nodes)},
-            "youngs_kpa": {n: scene.tissues[n].youngs for n in tissues}, "nominal_poisson": scene.tissues["prostate"].poisson,
-            "lesion_mm": list(scene.phantom.prostate_center_mm),
+            "youngs_kpa": {n: scene.tissues[n].youngs for n in tissues},
+            "nominal_poisson": scene.tissues["prostate"].poisson, "lesion_mm": list(scene.phantom.prostate_center_mm),
             "rows": _table(paths, probe, tissues), "fe_check": fe_check, "poisson": poisson}
 
 
@@ -162,17 +163,18 @@ def report(data: dict) -> str:
     """The result as Markdown: the +-25 % table at 10 mm, the FE check, the Poisson ratio, and the plot."""
     f = data["factor"]
     out = ["# Sensitivity to the tissues' stiffness", "",
-           f"How far the answer moves when one tissue's E is off by {100 * (f - 1):.0f} % (first order, |S_i| ln {f:g}), "
-           f"largest over the region, on `{data['model']}`'s mesh ({data['mesh']['n_tets']:,} tets) with its scene's physics.",
-           "", "![change per tissue against d](sensitivity.png)", "",
+           f"How far the answer moves when one tissue's E is off by {100 * (f - 1):.0f} % (first order, |S_i| ln "
+           f"{f:g}), largest over the region, on `{data['model']}`'s mesh ({data['mesh']['n_tets']:,} tets) with its "
+           "scene's physics.", "", "![change per tissue against d](sensitivity.png)", "",
            "| d (mm) | beta (deg) | tissue | markers (mm) | prostate surface (mm) | lesion at the centre (mm) |",
            "|---|---|---|---|---|---|"]
     out += [f"| {r['displacement_mm']:g} | {r['angle_deg']:g} | {r['tissue']} | {r['markers_mm']:.3f} | "
-            f"{r['prostate_surface_mm']:.3f} | {r['lesion_mm']:.3f} |" for r in data["rows"] if r["displacement_mm"] in (5.0, 10.0)]
-    out += ["", f"**Against fresh FE** at 10 mm, beta = 0, each E x {f:g} solved anew (the first-order change's error is "
-            "what a model using the sensitivities adds):", "",
-            "| tissue | FE change, markers (mm) | first order (mm) | first-order error, markers (mm) | surface (mm) | lesion (mm) |",
-            "|---|---|---|---|---|---|"]
+            f"{r['prostate_surface_mm']:.3f} | {r['lesion_mm']:.3f} |"
+            for r in data["rows"] if r["displacement_mm"] in (5.0, 10.0)]
+    out += ["", f"**Against fresh FE** at 10 mm, beta = 0, each E x {f:g} solved anew (the first-order change's error "
+            "is what a model using the sensitivities adds):", "",
+            "| tissue | FE change, markers (mm) | first order (mm) | first-order error, markers (mm) | surface (mm) | "
+            "lesion (mm) |", "|---|---|---|---|---|---|"]
     out += [f"| {c['tissue']} | {c['fe_change_mm']['markers']:.3f} | {c['first_order_change_mm']['markers']:.3f} | "
             f"{c['first_order_error_mm']['markers']:.4f} | {c['first_order_error_mm']['prostate_surface']:.4f} | "
             f"{c['first_order_error_mm']['lesion']:.4f} |" for c in data["fe_check"]]
@@ -183,8 +185,9 @@ def report(data: dict) -> str:
         out.append(f"| {p['poisson']:g} | " + (" | ".join(f"{c[k]:.3f}" for k in REGIONS) if c else
                                                 f"the solver did not hold: {p['failed'][:120]} | | ") + " |")
     worst = max(r["sum_over_tissues_rel"] for r in data["rows"])
-    out += ["", f"Scaling every E together leaves u unchanged: the four sensitivities sum to at most {worst:.1%} of the "
-            "largest, the compliance of the contact penalty (exactly zero with the glued patch, tests/fem_offline/fe/test_sensitivity.py)."]
+    out += ["", f"Scaling every E together leaves u unchanged: the four sensitivities sum to at most {worst:.1%} of "
+            "the largest, the compliance of the contact penalty (exactly zero with the glued patch, "
+            "tests/fem_offline/fe/test_sensitivity.py)."]
     return "\n".join(out) + "\n"
 
 
@@ -232,12 +235,14 @@ def main(argv: list[str] | None = None) -> int:
     plot(data, path.with_suffix(".png"))
     for row in data["rows"]:
         if row["displacement_mm"] == 10.0:
-            print(f"10 mm, beta {row['angle_deg']:g}: {row['tissue']:<12} E x {FACTOR:g}: markers {row['markers_mm']:.3f} mm, "
-                  f"surface {row['prostate_surface_mm']:.3f}, lesion {row['lesion_mm']:.3f} (first order)")
+            print(f"10 mm, beta {row['angle_deg']:g}: {row['tissue']:<12} E x {FACTOR:g}: markers "
+                  f"{row['markers_mm']:.3f} mm, surface {row['prostate_surface_mm']:.3f}, lesion "
+                  f"{row['lesion_mm']:.3f} (first order)")
     for c in data["fe_check"]:
         print(f"FE check {c['tissue']:<12}: markers {c['fe_change_mm']['markers']:.3f} mm (first order "
               f"{c['first_order_change_mm']['markers']:.3f}, off by {c['first_order_error_mm']['markers']:.4f})")
     for p in data["poisson"]:
-        print(f"nu {p['poisson']}: " + (f"markers {p['change_mm']['markers']:.3f} mm vs 0.495" if "change_mm" in p else p["failed"]))
+        said = f"markers {p['change_mm']['markers']:.3f} mm vs 0.495" if "change_mm" in p else p["failed"]
+        print(f"nu {p['poisson']}: " + said)
     print(f"wrote {path}")
     return 0

@@ -78,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         if cached.exists() and setting in result["settings"]:
             u = np.load(cached)["u"]
         else:
-            print(f"rtol {rtol:g}, contact_tol_mm {tol:g}: {len(mesh.tets)} tets, beta {args.angle_deg:g} deg", flush=True)
+            print(f"rtol {rtol:g}, contact_tol_mm {tol:g}: {len(mesh.tets)} tets, beta {args.angle_deg:g} deg",
+                  flush=True)
             problem = build_problem(with_tolerances(scene, rtol, tol), mesh)
             u, total = stepped_path(problem, args.angle_deg, args.to_mm)
             np.savez(cached, u=u)
@@ -96,8 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         if base:
             row["speedup_vs_first_nonreference"] = base / row["seconds"]
         v = row["vs_reference_mm"]
-        print(f"{row['rtol']:6.0e} {row['contact_tol_mm']:8g} {row['seconds']:7.1f} {base / row['seconds'] if base else 1:5.2f} "
-              f"{row['newton']:6d} {row['contact_updates']:7d} {row['factorisations']:5d}  "
-              f"{v['markers']:.5f} / {v['prostate_surface']:.5f} / {v['nodes']:.5f}")
+        print(f"{row['rtol']:6.0e} {row['contact_tol_mm']:8g} {row['seconds']:7.1f} "
+              f"{base / row['seconds'] if base else 1:5.2f} {row['newton']:6d} {row['contact_updates']:7d} "
+              f"{row['factorisations']:5d}  {v['markers']:.5f} / {v['prostate_surface']:.5f} / {v['nodes']:.5f}")
     print(f"wrote {results.write(args.name, result, publish=args.publish)}")
     return 0

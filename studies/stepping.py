@@ -22,7 +22,8 @@ def stepped_path(problem, angle_deg: float, to_mm: float, *, verbose: bool = Tru
     t0 = time.perf_counter()
     for d, u, st in solve_path(problem, ds, angle_deg):
         fields.append(u)
-        for key, value in zip(WORK, (st.iterations, st.cg_iterations, st.factorizations, st.contact_updates, st.halvings)):
+        for key, value in zip(WORK, (st.iterations, st.cg_iterations, st.factorizations, st.contact_updates,
+                                     st.halvings)):
             total[key] += value
         if verbose:
             print(f"  {d:6.2f} mm: Newton {st.iterations:3d}, CG {st.cg_iterations:4d}, factorisations "

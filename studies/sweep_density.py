@@ -39,12 +39,15 @@ GRIDS = ((1, 1), (2, 1), (4, 1), (1, 2), (2, 2), (4, 2))  # (angle stride, displ
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies sweep-density", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies sweep-density", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, required=True)
     ap.add_argument("--offgrid", type=Path, required=True)
-    ap.add_argument("--name", default="sweep_density", help="the result's name (sweep_density_patient for a patient's sweep)")
+    ap.add_argument("--name", default="sweep_density",
+                    help="the result's name (sweep_density_patient for a patient's sweep)")
     results.add_publish_flag(ap)
-    ap.add_argument("--seeds", type=number("--seeds", int, minimum=1), default=2, help="fits per grid (seeds 0..n-1); the worst is reported")
+    ap.add_argument("--seeds", type=number("--seeds", int, minimum=1), default=2,
+                    help="fits per grid (seeds 0..n-1); the worst is reported")
     ap.add_argument("--grids", nargs="+", default=[f"{a}:{s}" for a, s in GRIDS],
                     help="angle_stride:displacement_stride sub-grids of the sweep's grid")
     ap.add_argument("--configs", nargs="+", default=["{rank}:{width}:{depth}".format(**DEFAULT)],
@@ -64,7 +67,8 @@ def main(argv: list[str] | None = None) -> int | None:
     inside = np.array([envelope.contains(*x) for x in og_in], dtype=bool)
     og_in, og_ref = og_in[inside], og_ref[inside]
     if not len(og_in):
-        raise SystemExit(f"--offgrid: none of the {len(inside)} cases in {args.offgrid} lies inside the sweep's valid envelope")
+        raise SystemExit(f"--offgrid: none of the {len(inside)} cases in {args.offgrid} "
+                         "lies inside the sweep's valid envelope")
     n_angles, n_disps = len(np.unique(data.inputs[:, 1])), len(np.unique(data.inputs[:, 0][data.inputs[:, 0] > 0]))
     print(f"{args.sweep}: {len(data)} snapshots ({n_disps} displacements x {n_angles} angles), {len(sweep.mesh.nodes)} "
           f"nodes; {len(og_in)} off-grid cases", flush=True)
@@ -78,7 +82,8 @@ def main(argv: list[str] | None = None) -> int | None:
         for seed in range(args.seeds):
             t0 = time.perf_counter()
             fitted = fit_surrogate(train_in, train_rows, FitOptions(rank=min(config["rank"], len(train_in) - 1),
-                                                                     width=config["width"], depth=config["depth"], seed=seed))
+                                                                    width=config["width"], depth=config["depth"],
+                                                                    seed=seed))
             t.append(time.perf_counter() - t0)
             session = onnx_session(fitted.onnx_bytes())
             for name, (x, ref) in {"offgrid": (og_in, og_ref),
@@ -99,7 +104,8 @@ def main(argv: list[str] | None = None) -> int | None:
               f"rank {row['rank']} x {config['depth']}x{config['width']}, "
               f"{n_paths} angles): off-grid markers {og['markers']:.4f} / surface {og['prostate_surface']:.4f} / all "
               f"{og['all_nodes']:.4f} mm" + (f"; left-out grid markers {lo['markers']:.4f} / surface "
-                                             f"{lo['prostate_surface']:.4f} / all {lo['all_nodes']:.4f} mm" if lo else ""),
+                                             f"{lo['prostate_surface']:.4f} / all {lo['all_nodes']:.4f} mm" if lo
+                                             else ""),
               flush=True)
     path = results.write(args.name, {"sweep": str(args.sweep), "offgrid": str(args.offgrid), "n_offgrid": len(og_in),
                                      "seeds": args.seeds, "configs": configs, "rows": rows}, publish=args.publish)

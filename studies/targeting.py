@@ -21,7 +21,7 @@ and at naive aiming's pose: the needle ray's distance from the FE-displaced lesi
 
 Each solve is saved under --out (point_NNN.npz, plan_NNN.npz) and never repeated; --solved-only evaluates what is
 there without solving more (the JSON says how many of n were solved).
-"""
+"""  # noqa: E501 -- argparse prints this docstring as it is (--help)
 
 from __future__ import annotations
 
@@ -103,7 +103,8 @@ def solve(folder, predictor, state: np.ndarray) -> tuple[np.ndarray, str]:
             (_, u, _), = solve_path(problem, [d], beta, state=PathState(field(start), start))
             return np.asarray(u).reshape(-1, 3), f"model at {START_FRACTION:g} d"
         except ConvergenceError as exc:
-            log.warning("%g mm, %g deg: nor the path from the model at %g d (%s); from rest", d, beta, START_FRACTION, exc)
+            log.warning("%g mm, %g deg: nor the path from the model at %g d (%s); from rest", d, beta, START_FRACTION,
+                        exc)
     u, _ = solve_case(problem, d, beta)
     return np.asarray(u).reshape(-1, 3), "rest"
 
@@ -155,7 +156,8 @@ def evaluate(folder, predictor, fresh: dict[int, np.ndarray], states: np.ndarray
 
     space, markers = StateSpace.of(predictor), folder.regions["markers"]
     rng = np.random.default_rng(seed + 2)
-    out = {c["name"]: {"errors": [], "covered": [], "flagged": [], "std_d": [], "std_beta": [], "ms": []} for c in CONFIGS}
+    out = {c["name"]: {"errors": [], "covered": [], "flagged": [], "std_d": [], "std_beta": [], "ms": []}
+           for c in CONFIGS}
     forward, still = [], []
     for k, u in fresh.items():
         truth_state = states[k]
@@ -195,11 +197,13 @@ def _summary(out: dict, forward: np.ndarray, still: np.ndarray, *, n_lesions: in
         rows.append({"configuration": name, "median_mm": float(np.median(e)), "p95_mm": float(np.percentile(e, 95)),
                      "max_mm": float(e.max()), "coverage_95": float(np.mean(r["covered"])),
                      "flagged": float(np.mean(r["flagged"])), "beats_forward_nominal": float(beats.mean()),
-                     "std_d_mm_median": float(np.median(r["std_d"])), "std_beta_deg_median": float(np.median(r["std_beta"])),
-                     "estimate_ms_p50": float(np.percentile(r["ms"], 50)), "estimate_ms_p99": float(np.percentile(r["ms"], 99)),
-                     "target": TARGETS.get(name, "")})
+                     "std_d_mm_median": float(np.median(r["std_d"])),
+                     "std_beta_deg_median": float(np.median(r["std_beta"])),
+                     "estimate_ms_p50": float(np.percentile(r["ms"], 50)),
+                     "estimate_ms_p99": float(np.percentile(r["ms"], 99)), "target": TARGETS.get(name, "")})
     return {"rows": rows, "baselines": {
-        "forward_nominal_true_guide": {"median_mm": float(np.median(forward)), "p95_mm": float(np.percentile(forward, 95))},
+        "forward_nominal_true_guide": {"median_mm": float(np.median(forward)),
+                                       "p95_mm": float(np.percentile(forward, 95))},
         "no_deformation": {"median_mm": float(np.median(still)), "p95_mm": float(np.percentile(still, 95))}}}
 
 
@@ -230,7 +234,8 @@ def plan_check(folder, predictor, out: Path, k: int, state: np.ndarray, u: np.nd
 
     space, guide, markers = StateSpace.of(predictor), Guide.of(folder.manifest), folder.regions["markers"]
     pts = point_set(predictor, node_ids=markers, points=np.zeros((0, 3)))
-    observed = pts.reference + pts.weights @ u[pts.nodes] + np.random.default_rng(seed + 3 + k).normal(0, 0.2, (len(markers), 3))
+    noise = np.random.default_rng(seed + 3 + k).normal(0, 0.2, (len(markers), 3))
+    observed = pts.reference + pts.weights @ u[pts.nodes] + noise
     theta = _estimate(predictor, space, pts, len(markers), observed, 0.2, None).x[2:]
     lesion = plan_lesion(folder, predictor, k, seed)
     one = point_set(predictor, node_ids=markers[:0], points=lesion[None])
@@ -301,32 +306,34 @@ def report(data: dict) -> str:
     lines = [f"# Estimation and targeting on fresh FE, {data['model']}", "",
              f"{data['n_solved']} of {data['n_points']} random points solved afresh"
              + (f" ({len(data['unsolved'])} found no equilibrium)" if data["unsolved"] else "")
-             + f"; {len(data['lesions_mm'])} lesions, {data['draws_per_point']} noise draws per point and configuration.", ""]
+             + f"; {len(data['lesions_mm'])} lesions, {data['draws_per_point']} noise draws per point and "
+               "configuration.", ""]
     if data.get("rows"):
         lines += ["| configuration | lesion error, median | p95 | 95 % region holds the FE lesion | flagged | "
-                  "beats the forward model at true (d, β) | std d / β (median) | estimate p99 (in process) | issue's target |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "beats the forward model at true (d, β) | std d / β (median) | estimate p99 (in process) | issue's "
+                  "target |", "|---|---|---|---|---|---|---|---|---|"]
         for r in data["rows"]:
             lines.append(f"| {r['configuration']} | {r['median_mm']:.3f} mm | {r['p95_mm']:.3f} mm | "
-                         f"{100 * r['coverage_95']:.1f} % | {100 * r['flagged']:.1f} % | {100 * r['beats_forward_nominal']:.0f} % | "
-                         f"{r['std_d_mm_median']:.3f} mm / {r['std_beta_deg_median']:.2f} deg | {r['estimate_ms_p99']:.1f} ms | "
-                         f"{r['target']} |")
+                         f"{100 * r['coverage_95']:.1f} % | {100 * r['flagged']:.1f} % | "
+                         f"{100 * r['beats_forward_nominal']:.0f} % | {r['std_d_mm_median']:.3f} mm / "
+                         f"{r['std_beta_deg_median']:.2f} deg | {r['estimate_ms_p99']:.1f} ms | {r['target']} |")
         b = data["baselines"]
-        lines += ["", f"Baselines at the same lesions: the forward model at the true (d, β) and nominal stiffness, median "
-                  f"{b['forward_nominal_true_guide']['median_mm']:.3f} mm (p95 {b['forward_nominal_true_guide']['p95_mm']:.3f}); "
-                  f"no deformation, median {b['no_deformation']['median_mm']:.3f} mm "
-                  f"(p95 {b['no_deformation']['p95_mm']:.3f})."]
+        lines += ["", "Baselines at the same lesions: the forward model at the true (d, β) and nominal stiffness, "
+                  f"median {b['forward_nominal_true_guide']['median_mm']:.3f} mm (p95 "
+                  f"{b['forward_nominal_true_guide']['p95_mm']:.3f}); no deformation, median "
+                  f"{b['no_deformation']['median_mm']:.3f} mm (p95 {b['no_deformation']['p95_mm']:.3f})."]
     if data["plans"]:
         ok = sum(p["fe_planned_miss_mm"] <= PLAN_TOL_MM for p in data["plans"] if p["reachable"])
         reach = sum(p["reachable"] for p in data["plans"])
         lines += ["", f"Planning at {len(data['plans'])} points, each at a lesion on the guide's tilt plane ({reach} "
-                  f"reachable): the planned needle path passes within {PLAN_TOL_MM} mm of the FE-displaced lesion at {ok} "
-                  f"of {reach}.", "",
+                  f"reachable): the planned needle path passes within {PLAN_TOL_MM} mm of the FE-displaced lesion at "
+                  f"{ok} of {reach}.", "",
                   "| point | lesion (mm) | d (mm) | planned β | predicted miss | FE miss, planned | naive β | "
                   "predicted miss, naive | FE miss, naive |", "|---|---|---|---|---|---|---|---|---|"]
         for p in data["plans"]:
-            lines.append(f"| {p['point']} | {p['lesion_mm']} | {p['displacement_mm']:.2f} | {p['planned_angle_deg']:.2f} | "
-                         f"{p['predicted_planned_miss_mm']:.3f} mm | {p['fe_planned_miss_mm']:.3f} mm | {p['naive_angle_deg']:.2f} | "
+            lines.append(f"| {p['point']} | {p['lesion_mm']} | {p['displacement_mm']:.2f} | "
+                         f"{p['planned_angle_deg']:.2f} | {p['predicted_planned_miss_mm']:.3f} mm | "
+                         f"{p['fe_planned_miss_mm']:.3f} mm | {p['naive_angle_deg']:.2f} | "
                          f"{p['predicted_naive_miss_mm']:.3f} mm | {p['fe_naive_miss_mm']:.3f} mm |")
     return "\n".join(lines) + "\n"
 

@@ -59,7 +59,8 @@ DEFAULT = (64, 120, 1)  # models/default: rank, width, depth
 WORKERS = 2  # the sweep's default process count, as the measured sweep ran
 MESH_CHECK_SCALES = (1.69, 1.0)
 MESH_CHECK_RANKS = (8, 16, 24)
-MESH_CHECK_HELD_OUT = ((6.0, -6.0), (4.0, -4.0), (5.0, -2.0), (2.0, 0.0), (3.0, 2.0))  # on the 1 mm x 2 deg grid, inside its valid 0-7 mm
+# on the 1 mm x 2 deg grid, inside its valid 0-7 mm
+MESH_CHECK_HELD_OUT = ((6.0, -6.0), (4.0, -4.0), (5.0, -2.0), (2.0, 0.0), (3.0, 2.0))
 SHOWN = ("markers", "prostate_surface")
 
 
@@ -90,7 +91,8 @@ def fit_configs(sweep, offgrid, ranks, networks, test_cases=PAPER_TEST_CASES) ->
                         "iterations": fitted.info["iterations"], "layers": fitted.layers, "onnx": onnx,
                         "n_held_out": len(h_in)})
             print(f"  rank {rank:2d} {depth}x{width:<3d}: markers {err['markers']:.5f} mm, surface "
-                  f"{err['prostate_surface']:.5f} mm, {fitted.info['iterations']} iterations, {train_s:.1f} s", flush=True)
+                  f"{err['prostate_surface']:.5f} mm, {fitted.info['iterations']} iterations, {train_s:.1f} s",
+                  flush=True)
     return out
 
 
@@ -121,7 +123,8 @@ def points(configs, levels, sweep_level, sweep, repeat: int) -> list[dict]:
 
 
 def tiny_sweeps(folder: Path) -> list[Path]:
-    """The tiny scene's nonlinear 1 mm x 2 deg sweep at each MESH_CHECK_SCALES mesh size (resumable; built if missing)."""
+    """The tiny scene's nonlinear 1 mm x 2 deg sweep at each MESH_CHECK_SCALES mesh size (resumable;
+    built if missing)."""
     from studies.convergence import scaled_scene
     from fem_offline.scene import load_scene
     from fem_offline.sweep import run_sweep
@@ -134,19 +137,22 @@ def tiny_sweeps(folder: Path) -> list[Path]:
         path = folder / f"{scale:g}"
         manifest = run_sweep(scaled_scene(base, scale), path, workers=WORKERS)
         if manifest.n_done != manifest.n_expected:
-            raise SystemExit(f"--mesh-check: {path} has {manifest.n_done} of {manifest.n_expected} snapshots: {manifest.errors}")
+            raise SystemExit(f"--mesh-check: {path} has {manifest.n_done} of {manifest.n_expected} snapshots: "
+                             f"{manifest.errors}")
         out.append(path)
     return out
 
 
 def mesh_check(folder: Path) -> list[dict]:
-    """Surrogate errors of the same fits on the tiny scene at each mesh size: how much e_surrogate depends on the mesh."""
+    """Surrogate errors of the same fits on the tiny scene at each mesh size:
+    how much e_surrogate depends on the mesh."""
     rows = []
     for path in tiny_sweeps(folder):
         sweep = read_sweep(path)
         print(f"mesh check: {path} ({len(sweep.mesh.tets)} tets)", flush=True)
         for c in fit_configs(sweep, None, MESH_CHECK_RANKS, ((60, 1),), MESH_CHECK_HELD_OUT):
-            rows.append({"folder": str(path), "n_tets": len(sweep.mesh.tets), "rank": c["rank"], "surrogate_mm": c["surrogate_mm"]})
+            rows.append({"folder": str(path), "n_tets": len(sweep.mesh.tets), "rank": c["rank"],
+                         "surrogate_mm": c["surrogate_mm"]})
     return rows
 
 
@@ -204,7 +210,8 @@ def figure(pts, levels, build, out: Path) -> None:
                    marker=shapes[p["net"]], s=12 + 2 * p["rank"], alpha=0.75)
     for level, b in build.items():
         if b.get("measured_s") is not None:
-            ax.axvline(b["measured_s"], color=colours[level], ls=":", lw=1, label=f"measured sweep, {tets[level]:,} tets")
+            ax.axvline(b["measured_s"], color=colours[level], ls=":", lw=1,
+                       label=f"measured sweep, {tets[level]:,} tets")
     ax.set(xlabel="offline build (s): sweep (estimated) + PCA and training",
            ylabel="end-to-end error at the markers (mm, max)", title="what a build costs offline (2 workers)")
     ax.grid(True, alpha=0.3)
@@ -231,42 +238,48 @@ def level_lines(levels, build, sweep_level) -> list[str]:
         b = build[lv.label]
         own = " (the sweep's)" if lv is sweep_level else ""
         lines.append(f"| {lv.n_tets:,} tets, {lv.label}{own} | {lv.n_nodes:,} | {fmt(lv.fe_mm.get('markers'))} | "
-                     f"{fmt(lv.fe_mm.get('prostate_surface'))} | {fmt(lv.fe_mm.get('all_nodes'))} | {lv.path_seconds:.0f} s | "
-                     f"{duration(b['estimate_s'])} | {duration(b['measured_s']) if b['measured_s'] else '—'} |")
+                     f"{fmt(lv.fe_mm.get('prostate_surface'))} | {fmt(lv.fe_mm.get('all_nodes'))} | "
+                     f"{lv.path_seconds:.0f} s | {duration(b['estimate_s'])} | "
+                     f"{duration(b['measured_s']) if b['measured_s'] else '—'} |")
     return lines
 
 
 def point_lines(pts) -> list[str]:
-    lines = ["| mesh (tets) | rank | net | surrogate: markers / surface / every node (mm) | end to end: markers / surface / "
-             "every node (mm) | decode, all nodes | decode, surface (nodes) | PCA + train | L-BFGS iterations | Pareto |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| mesh (tets) | rank | net | surrogate: markers / surface / every node (mm) | end to end: markers / "
+             "surface / every node (mm) | decode, all nodes | decode, surface (nodes) | PCA + train | L-BFGS "
+             "iterations | Pareto |", "|---|---|---|---|---|---|---|---|---|---|"]
     for p in pts:
         s, e = p["surrogate_mm"], p["e2e_mm"]
-        marks = [r.replace("prostate_", "") for r in SHOWN if p.get(f"pareto_{r}")] + (["default"] if p["default"] else [])
+        marks = ([r.replace("prostate_", "") for r in SHOWN if p.get(f"pareto_{r}")]
+                 + (["default"] if p["default"] else []))
         est = " est." if p["surface_nodes_estimated"] else ""
-        lines.append(f"| {p['n_tets']:,} | {p['rank']} | {p['net']} | {s['markers']:.5f} / {s['prostate_surface']:.5f} / "
-                     f"{s['all_nodes']:.5f} | {fmt(e.get('markers'))} / {fmt(e.get('prostate_surface'))} / "
-                     f"{fmt(e.get('all_nodes'))} | {ms(p['latency_s'])} | {ms(p['surface_latency_s'])} ({p['surface_nodes']}{est}) | "
-                     f"{p['train_s']:.1f} s | {p['iterations']} | {', '.join(marks)} |")
+        lines.append(f"| {p['n_tets']:,} | {p['rank']} | {p['net']} | {s['markers']:.5f} / {s['prostate_surface']:.5f} "
+                     f"/ {s['all_nodes']:.5f} | {fmt(e.get('markers'))} / {fmt(e.get('prostate_surface'))} / "
+                     f"{fmt(e.get('all_nodes'))} | {ms(p['latency_s'])} | {ms(p['surface_latency_s'])} "
+                     f"({p['surface_nodes']}{est}) | {p['train_s']:.1f} s | {p['iterations']} | {', '.join(marks)} |")
     return lines
 
 
 def check_lines(rows) -> list[str]:
     if not rows:
         return ["Not run (no --mesh-check)."]
-    lines = ["| tiny mesh | rank (1x60) | surrogate: markers | prostate surface | every node (mm) |", "|---|---|---|---|---|"]
+    lines = ["| tiny mesh | rank (1x60) | surrogate: markers | prostate surface | every node (mm) |",
+             "|---|---|---|---|---|"]
     for r in rows:
         s = r["surrogate_mm"]
-        lines.append(f"| {r['n_tets']:,} tets | {r['rank']} | {s['markers']:.5f} | {s['prostate_surface']:.5f} | {s['all_nodes']:.5f} |")
+        lines.append(f"| {r['n_tets']:,} tets | {r['rank']} | {s['markers']:.5f} | {s['prostate_surface']:.5f} | "
+                     f"{s['all_nodes']:.5f} |")
     return lines
 
 
 def committed_line(model: Path, sweep_level) -> list[str]:
-    """The committed model of the default configuration, if it was fitted on the sweep's mesh: its own surrogate errors."""
+    """The committed model of the default configuration, if it was fitted on the sweep's mesh:
+    its own surrogate errors."""
     if not (model / "manifest.json").is_file():
         return []
     m = read_manifest(model)
-    if ((m.fit.rank, m.fit.width, m.fit.depth) != DEFAULT or (m.mesh.n_tets, m.mesh.n_nodes) != (sweep_level.n_tets, sweep_level.n_nodes)):
+    if ((m.fit.rank, m.fit.width, m.fit.depth) != DEFAULT
+            or (m.mesh.n_tets, m.mesh.n_nodes) != (sweep_level.n_tets, sweep_level.n_nodes)):
         return []
     s = {k: r.surrogate_mm for k, r in m.accuracy.regions.items()}
     e = end_to_end(s, sweep_level.fe_mm)
@@ -286,18 +299,19 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "Each point is a configuration: a mesh level L of the grid-convergence study "
         f"([{meta['convergence']}]({Path(meta['convergence']).name})) or a mesh graded where the error is, judged "
         f"against the same study ({meta['graded']}), a PCA rank and a network. Its error is **end "
-        "to end**: the surrogate's error against its own mesh's FE plus that mesh's FE error against the best converged "
-        "estimate (`training/tradeoff.py`), max over the region's points and the cases. Its time is the **online "
-        "latency**: one onnxruntime call of the exported float32 graph (1 thread, batch 1, median). The offline build "
-        "cost is the third panel.", "",
+        "to end**: the surrogate's error against its own mesh's FE plus that mesh's FE error against the best "
+        "converged estimate (`training/tradeoff.py`), max over the region's points and the cases. Its time is the "
+        "**online latency**: one onnxruntime call of the exported float32 graph (1 thread, batch 1, median). The "
+        "offline build cost is the third panel.", "",
         "* **FE error of a level** (from the convergence JSON): the finest level's GCI band (Fs 1.25); a coarser "
-        "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate surface "
-        "and every node only as summaries of the three analysed levels (a coarser level's pointwise bound, max over "
-        "the points; studies analysed before the coarse bound was stored give the two finest), so the surface panel "
-        "has those levels only, and every node the same (table). A graded mesh (`python -m studies graded-mesh`): the same "
-        "bound, |u − u_finest| plus the finest's band, at the study's markers, surface points and nodes.",
-        f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the only "
-        f"840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "
+        "level's |u_L − u_finest| plus the finest's band, pointwise at the markers. The JSON keeps the prostate "
+        "surface and every node only as summaries of the three analysed levels (a coarser level's pointwise bound, max "
+        "over the points; studies analysed before the coarse bound was stored give the two finest), so the surface "
+        "panel has those levels only, and every node the same (table). A graded mesh (`python -m studies "
+        "graded-mesh`): the same bound, |u − u_finest| plus the finest's band, at the study's markers, "
+        "surface points and nodes.",
+        f"* **Surrogate error**: fitted and measured on the {sweep_level.n_tets:,}-tet sweep ({meta['sweep']}, the "
+        f"only 840-case sweep), held out: the paper's five Table 3 samples and {meta['n_offgrid']} off-grid cases "
         f"({meta['n_held_out']} cases). **Assumed**: the same (rank, network) errs as much on "
         "every level's sweep, so the measured value is added to every level's FE error. The mesh check below tests it "
         "on the tiny scene.",
@@ -307,22 +321,26 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         f"* **Build cost**: the 840-case sweep on {WORKERS} workers solves {meta['n_paths']} paths (β ≥ 0; β < 0 is "
         "mirrored). Estimated for every level as ceil(paths / workers) × that level's full-push solve time in the "
         "convergence JSON (mean of its 10 mm cases, solved from rest); the sweep's own level is also measured: its "
-        "per-path solve seconds (manifest) scheduled on the workers. Training (PCA + network) is measured per point.", "",
+        "per-path solve seconds (manifest) scheduled on the workers. Training (PCA + network) is measured per point.",
+        "",
         "## The default configuration", "",
-        f"`models/default` (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {sweep_level.n_tets:,} tets): **{d['e2e_mm']['markers']:.3f} mm at the markers, "
-        f"{d['e2e_mm']['prostate_surface']:.3f} mm on the prostate surface, {d['e2e_mm']['all_nodes']:.3f} mm at every "
-        f"node**, end to end; of which the surrogate {d['surrogate_mm']['markers']:.5f} / "
-        f"{d['surrogate_mm']['prostate_surface']:.5f} / {d['surrogate_mm']['all_nodes']:.5f} mm. Decode "
-        f"{ms(d['latency_s'])} (all nodes), {ms(d['surface_latency_s'])} (surface); {d['iterations']} L-BFGS "
+        f"`models/default` (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {sweep_level.n_tets:,} tets): "
+        f"**{d['e2e_mm']['markers']:.3f} mm at the markers, {d['e2e_mm']['prostate_surface']:.3f} mm on the prostate "
+        f"surface, {d['e2e_mm']['all_nodes']:.3f} mm at every node**, end to end; of which the surrogate "
+        f"{d['surrogate_mm']['markers']:.5f} / {d['surrogate_mm']['prostate_surface']:.5f} / "
+        f"{d['surrogate_mm']['all_nodes']:.5f} mm. Decode {ms(d['latency_s'])} (all nodes), "
+        f"{ms(d['surface_latency_s'])} (surface); {d['iterations']} L-BFGS "
         "iterations in this run.", "", *meta["committed"],
         "## Mesh levels", "", *level_lines(levels, build, sweep_level), "",
-        f"At the sweep's level the estimate is {build[sweep_level.label]['estimate_s'] / build[sweep_level.label]['measured_s']:.2f}x "
+        "At the sweep's level the estimate is "
+        f"{build[sweep_level.label]['estimate_s'] / build[sweep_level.label]['measured_s']:.2f}x "
         "the measured sweep: the study's solve times (one path from rest, at the study's load step, which may be "
         "larger than the sweep's 0.25 mm, on a machine shared with other jobs) are a rough scale for the others.", "",
         "## Pareto points", "",
         "Markers (every level):", "", "| mesh (tets) | rank | net | decode | end to end (mm) | surrogate | FE |",
         "|---|---|---|---|---|---|---|", *pareto_lines(pts, "markers"), "",
-        "Prostate surface (the levels the study analysed):", "", "| mesh (tets) | rank | net | decode | end to end (mm) | surrogate | FE |",
+        "Prostate surface (the levels the study analysed):", "",
+        "| mesh (tets) | rank | net | decode | end to end (mm) | surrogate | FE |",
         "|---|---|---|---|---|---|---|", *pareto_lines(pts, "prostate_surface"), "",
         "Decode times within about 0.01–0.02 ms of each other are equal within this machine's noise, so the order of "
         "neighbouring Pareto points is not significant.", "",
@@ -332,16 +350,17 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         f"{' and × '.join(f'{s:g}' for s in MESH_CHECK_SCALES)}):", "", *check_lines(checks), "",
         "## FE solved online instead", "",
         "Solving the FE per query removes the surrogate's share but costs the full-push solve time: "
-        + ", ".join(f"{lv.path_seconds:.0f} s on {lv.n_tets:,} tets (error {fmt(lv.fe_mm.get('markers'))} mm at the markers)"
+        + ", ".join(f"{lv.path_seconds:.0f} s on {lv.n_tets:,} tets "
+                    f"(error {fmt(lv.fe_mm.get('markers'))} mm at the markers)"
                     for lv in levels)
-        + f". The off-grid cases on the sweep's mesh took {fe_query['median']:.0f} s median (max {fe_query['max']:.0f} s) "
-        f"from rest; the default decode {ms(d['latency_s'])}: about {speedup:,.0f}x faster, "
+        + f". The off-grid cases on the sweep's mesh took {fe_query['median']:.0f} s median (max {fe_query['max']:.0f} "
+        f"s) from rest; the default decode {ms(d['latency_s'])}: about {speedup:,.0f}x faster, "
         "for an end-to-end error larger by the surrogate's share above. The paper: 11.1 min vs 0.04 s.", "",
         "## Left out of this study", "",
-        "* **The linear model**: it is cut where it turns elements inside out (the glued linear sweep of default.toml's "
-        "mesh from 5.5 mm, counting det F between the quadrature points, [linear_validity.json](linear_validity.json); "
-        "`fem_offline/fe/validity.py`), so a linear model answers only part of the 0–10 mm envelope of these points, and is "
-        "not a point on this front.",
+        "* **The linear model**: it is cut where it turns elements inside out (the glued linear sweep of "
+        "default.toml's mesh from 5.5 mm, counting det F between the quadrature points, "
+        "[linear_validity.json](linear_validity.json); `fem_offline/fe/validity.py`), so a linear model answers only "
+        "part of the 0–10 mm envelope of these points, and is not a point on this front.",
         "* **Finer meshes than the study's finest** (the earlier linear rows up to paper scale): their error against "
         "the converged estimate is not known until the convergence study has them; FE solves at those sizes are not "
         "rerun here.",
@@ -351,7 +370,8 @@ def markdown(pts, levels, sweep_level, build, checks, fe_query, meta) -> str:
         "fewer than about 100 iterations met L-BFGS's change tolerance early (`training/network.py` takes that as "
         "converged); its error can be several times that of a run that went on, and which runs stop depends on "
         "round-off (the thread count changes it). So neighbouring networks are ranked partly by the optimiser's luck; "
-        "the surrogate's share of the end-to-end error stays small either way.", "", *point_lines(pts), "", "![tradeoff](tradeoff.png)", ""]
+        "the surrogate's share of the end-to-end error stays small either way.", "", *point_lines(pts), "",
+        "![tradeoff](tradeoff.png)", ""]
     return "\n".join(lines)
 
 
@@ -364,14 +384,17 @@ def fe_query_seconds(offgrid: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies tradeoff", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies tradeoff", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sweep", type=Path, default=Path("runs/default"), help="the 840-case sweep on one study level")
     ap.add_argument("--offgrid", type=Path, default=Path("runs/default/offgrid"))
     ap.add_argument("--convergence", type=Path, default=Path("runs/results/convergence_taylor_hood.json"),
-                    help="`python -m studies convergence-study`'s result (e.g. docs/results/convergence_taylor_hood.json)")
-    ap.add_argument("--graded", type=Path, help="`python -m studies graded-mesh`'s result: graded meshes judged against the "
-                    "same study, as more levels (e.g. docs/results/graded_mesh.json)")
-    ap.add_argument("--mesh-check", type=Path, help="folder of the tiny scene's sweeps for the mesh check (built if missing)")
+                    help="`python -m studies convergence-study`'s result (e.g. "
+                         "docs/results/convergence_taylor_hood.json)")
+    ap.add_argument("--graded", type=Path, help="`python -m studies graded-mesh`'s result: graded meshes judged "
+                    "against the same study, as more levels (e.g. docs/results/graded_mesh.json)")
+    ap.add_argument("--mesh-check", type=Path,
+                    help="folder of the tiny scene's sweeps for the mesh check (built if missing)")
     ap.add_argument("--model", type=Path, default=Path("models/default"),
                     help="the committed model of the default configuration, quoted beside this run's fit")
     ap.add_argument("--repeat", type=number("--repeat", int, minimum=1), default=200,
@@ -384,7 +407,8 @@ def main(argv: list[str] | None = None) -> int | None:
     if args.graded:
         try:
             skipped: list[str] = []
-            levels = sorted(levels + graded_levels(json.loads(args.graded.read_text()), skipped), key=lambda lv: lv.n_tets)
+            levels = sorted(levels + graded_levels(json.loads(args.graded.read_text()), skipped),
+                            key=lambda lv: lv.n_tets)
         except (ValueError, KeyError) as exc:
             raise SystemExit(f"--graded: {args.graded}: {exc}") from None
         if skipped:
@@ -408,19 +432,22 @@ def main(argv: list[str] | None = None) -> int | None:
     graded = f"[{args.graded}]({args.graded.name})" if args.graded else "none in this run"
     meta = {"convergence": str(args.convergence),
             "graded": graded,
-            "sweep": str(args.sweep), "surface_nodes": len(sweep.mesh.node_sets["prostate_surface"]), "n_paths": len(paths), "n_held_out": configs[0]["n_held_out"],
+            "sweep": str(args.sweep), "surface_nodes": len(sweep.mesh.node_sets["prostate_surface"]),
+            "n_paths": len(paths), "n_held_out": configs[0]["n_held_out"],
             "n_offgrid": configs[0]["n_held_out"] - len(PAPER_TEST_CASES),
             "committed": committed_line(args.model, sweep_level), "seconds": time.perf_counter() - t0}
     fe_query = fe_query_seconds(args.offgrid)
     report = markdown(pts, levels, sweep_level, build, checks, fe_query, meta)
     path = results.write("tradeoff", json_ready({
-        "sweep": str(args.sweep), "convergence": str(args.convergence), "graded": str(args.graded) if args.graded else None,
+        "sweep": str(args.sweep), "convergence": str(args.convergence),
+        "graded": str(args.graded) if args.graded else None,
         "levels": [vars(lv) | {"build": build[lv.label]} for lv in levels], "sweep_level": sweep_level.label,
         "points": pts, "mesh_check": checks, "fe_query_s": fe_query,
         "report_md": report}), publish=args.publish)
     d = next(p for p in pts if p["default"])
-    print(f"default (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {d['n_tets']} tets): end to end {d['e2e_mm']['markers']:.4f} mm at the markers, "
-          f"{d['e2e_mm']['prostate_surface']:.4f} mm at the surface; decode {ms(d['latency_s'])}")
+    print(f"default (rank {DEFAULT[0]}, {DEFAULT[2]}x{DEFAULT[1]}, {d['n_tets']} tets): end to end "
+          f"{d['e2e_mm']['markers']:.4f} mm at the markers, {d['e2e_mm']['prostate_surface']:.4f} mm at the surface; "
+          f"decode {ms(d['latency_s'])}")
     for region in SHOWN:
         front = sorted((p for p in pts if p.get(f"pareto_{region}")), key=lambda p: p["latency_s"])
         print(f"Pareto ({region}): " + "; ".join(f"{p['n_tets']} tets r{p['rank']} {p['net']} {ms(p['latency_s'])} "

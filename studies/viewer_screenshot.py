@@ -21,7 +21,8 @@ from tools.loadtest import local_service
 
 
 def zoom(page, factor: float) -> None:
-    """Turn the mouse wheel over the view until the camera is `factor` times closer (OrbitControls dollies to the prostate)."""
+    """Turn the mouse wheel over the view until the camera is `factor` times closer
+    (OrbitControls dollies to the prostate)."""
     distance = lambda: page.evaluate("__viewer.cameraDistance()")  # noqa: E731
     goal = distance() / factor
     page.mouse.move(300, 300)

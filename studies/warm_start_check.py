@@ -26,7 +26,8 @@ from fem_offline.fe.solve import solve_case
 
 
 def main(argv: list[str] | None = None) -> int | None:
-    ap = argparse.ArgumentParser(prog="python -m studies warm-start-check", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m studies warm-start-check", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True)
     ap.add_argument("--cases", type=Path, required=True, help="a `fem_offline cases --sweep` output folder")
     ap.add_argument("--index", type=int, help="case number (default: the largest displacement)")
@@ -45,11 +46,13 @@ def main(argv: list[str] | None = None) -> int | None:
     print(f"{files[i].name}: {d:.3f} mm, {beta:.3f} deg; from the sweep: {int(case['newton_iterations'])} Newton "
           f"iterations, {int(case['factorizations'])} factorisations, {float(case['seconds']):.1f} s", flush=True)
     u, stats = solve_case(problem, d, beta)
-    print(f"from rest: {stats.iterations} Newton iterations, {stats.factorizations} factorisations, {stats.seconds:.1f} s")
+    print(f"from rest: {stats.iterations} Newton iterations, {stats.factorizations} factorisations, "
+          f"{stats.seconds:.1f} s")
     gap = np.linalg.norm(u - case["displacement"], axis=1)
     for name, ids in (("markers", mesh.node_sets["markers"]), ("prostate surface", mesh.node_sets["prostate_surface"]),
                       ("every node", slice(None))):
-        print(f"  {name}: max |u_sweep start - u_rest| {gap[ids].max():.2e} mm (max |u| {np.linalg.norm(u, axis=1)[ids].max():.3f} mm)")
+        print(f"  {name}: max |u_sweep start - u_rest| {gap[ids].max():.2e} mm (max |u| "
+              f"{np.linalg.norm(u, axis=1)[ids].max():.3f} mm)")
     if args.model is not None:
         session = onnx_session(args.model / "model.onnx")
         pred = session.run(None, {"guide": np.array([[d, beta]], dtype=np.float32)})[0][0]

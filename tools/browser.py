@@ -58,7 +58,8 @@ def serve_in_thread(app, *, timeout_s: float = 30.0) -> Iterator[str]:
 
 @contextmanager
 def launch_chromium(flags: list[str] | None = None) -> Iterator[object]:
-    """A headless Playwright browser on the chromium found on PATH, WebGL in software (`flags`, default `webgl_flags()`)."""
+    """A headless Playwright browser on the chromium found on PATH,
+    WebGL in software (`flags`, default `webgl_flags()`)."""
     from playwright.sync_api import sync_playwright
 
     executable = find_chromium()
@@ -122,7 +123,8 @@ def wait_still(page, *, timeout_ms: float = 30_000) -> None:
 # itself takes no CPU from the page and the service), then pauses (a hand moves at a few tens of Hz).
 DRAG = """async ([id, values, pauseMs]) => {
   const slider = document.getElementById(id), out = [];
-  const drawn = () => new Promise((resolve) => window.addEventListener('viewer-frame', (e) => resolve(e.detail), { once: true }));
+  const drawn = () => new Promise(
+    (resolve) => window.addEventListener('viewer-frame', (e) => resolve(e.detail), { once: true }));
   for (const value of values) {
     const next = drawn();
     slider.value = String(value);

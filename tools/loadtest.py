@@ -84,7 +84,8 @@ def local_service_process(*flags: str, cwd: Path | None = None, wait_s: float = 
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     pin = ["taskset", "-c", ",".join(map(str, sorted(cpus)))] if cpus else []
-    server = subprocess.Popen([*pin, sys.executable, "-m", "service", *flags, "--port", str(port), "--log-level", "warning"],
+    server = subprocess.Popen([*pin, sys.executable, "-m", "service", *flags, "--port", str(port),
+                               "--log-level", "warning"],
                               cwd=cwd, env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
         deadline = time.monotonic() + wait_s
@@ -176,7 +177,8 @@ def run(url: str, *, concurrency: int = 1, duration_s: float | None = 10.0, requ
     probe.request("GET", "/model")
     envelope = json.loads(probe.getresponse().read())["envelope"]
     probe.close()
-    headers = {"content-type": "application/json", "accept": "application/octet-stream" if fmt == "binary" else "application/json"}
+    headers = {"content-type": "application/json",
+               "accept": "application/octet-stream" if fmt == "binary" else "application/json"}
     span = min(duration_s or MAX_DURATION_S, MAX_DURATION_S)
     budget = [min(requests or MAX_REQUESTS, MAX_REQUESTS)]
     lock = threading.Lock()

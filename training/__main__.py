@@ -1,7 +1,6 @@
 """Command line: `python -m training fit --snapshots DIR --out models/NAME`, `python -m training restamp --model
-models/NAME --fe-error JSON`, `python -m training material-check --model models/NAME --cases DIR`, `python -m training regraph --model
-models/NAME`; bad input gets
-one line, exit code 2."""
+models/NAME --fe-error JSON`, `python -m training material-check --model models/NAME --cases DIR`, `python -m training
+regraph --model models/NAME`; bad input gets one line, exit code 2."""
 
 from __future__ import annotations
 
@@ -11,10 +10,10 @@ import os
 import sys
 from pathlib import Path
 
-# One thread for numpy and torch unless the caller sets otherwise, before either loads (as `python -m studies tradeoff`):
-# the fit's round-off, and so where L-BFGS stops, then does not depend on the cores or the machine's load, and a rerun
-# gives the same model.onnx byte for byte. With more threads on a busy machine the fit can stop far from where one
-# thread takes it (CHANGELOG, issue 50).
+# One thread for numpy and torch unless the caller sets otherwise, before either loads (as `python -m studies
+# tradeoff`): the fit's round-off, and so where L-BFGS stops, then does not depend on the cores or the machine's load,
+# and a rerun gives the same model.onnx byte for byte. With more threads on a busy machine the fit can stop far from
+# where one thread takes it (CHANGELOG, issue 50).
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -25,7 +24,8 @@ def _case(text: str) -> tuple[float, float]:
     try:
         d, a = (float(v) for v in text.split("/"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--test-case: expected DISPLACEMENT_MM/ANGLE_DEG like 7.75/-5, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"--test-case: expected DISPLACEMENT_MM/ANGLE_DEG like 7.75/-5, "
+                                         f"got {text!r}") from None
     return d, a
 
 
@@ -37,21 +37,27 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--snapshots", required=True, type=Path, help="a `fem_offline sweep` output folder")
     f.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
     f.add_argument("--offgrid", type=Path, help="folder of `fem_offline cases` cases to evaluate on")
-    f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh (docs/results/convergence_taylor_hood.json): "
-                   "the FE discretisation error, added to the surrogate's for the end-to-end bound")
-    f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="PCA modes (default 16, the paper's)")
+    f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh "
+                   "(docs/results/convergence_taylor_hood.json): the FE discretisation error, added to the surrogate's "
+                   "for the end-to-end bound")
+    f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16,
+                   help="PCA modes (default 16, the paper's)")
     f.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=1), default=32,
                    help="a material sweep's extra modes for the sensitivities, beyond --rank's for u (default 32)")
-    f.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units per layer (default 60)")
+    f.add_argument("--width", type=number("--width", int, minimum=1), default=60,
+                   help="hidden units per layer (default 60)")
     f.add_argument("--depth", type=number("--depth", int, minimum=1), default=1, help="hidden layers (default 1)")
-    f.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000, help="L-BFGS iterations (default 1000)")
+    f.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000,
+                   help="L-BFGS iterations (default 1000)")
     f.add_argument("--seed", type=number("--seed", int), default=0)
     f.add_argument("--test-case", type=_case, action="append",
                    help="held-out snapshot D/A (repeatable; default: the paper's five)")
-    r = sub.add_parser("restamp", help="stamp a model folder's accuracy again with another FE estimate, without refitting")
+    r = sub.add_parser("restamp",
+                       help="stamp a model folder's accuracy again with another FE estimate, without refitting")
     r.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
     r.add_argument("--fe-error", required=True, type=Path,
-                   help="`python -m studies model-vs-converged`'s JSON for this model (docs/results/fe_error_default.json)")
+                   help="`python -m studies model-vs-converged`'s JSON for this model "
+                        "(docs/results/fe_error_default.json)")
     k = sub.add_parser("material-check", help="stamp a material model with its first-order material model's error "
                        "against fresh FE (`fem_offline material-cases`), without refitting")
     k.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
@@ -60,7 +66,8 @@ def _parser() -> argparse.ArgumentParser:
                        "of a `fem_offline design` folder: a model right over the stiffness box, not first order")
     e.add_argument("--design", required=True, type=Path, help="a `fem_offline design` output folder")
     e.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
-    e.add_argument("--held-out", type=Path, help="a `fem_offline design --held-out` folder on the same mesh to check against")
+    e.add_argument("--held-out", type=Path,
+                   help="a `fem_offline design --held-out` folder on the same mesh to check against")
     e.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="u / d's PCA modes (default 16)")
     e.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=0), default=32,
                    help="extra modes for what u's leave of the S_i / d (default 32)")
@@ -141,7 +148,8 @@ def _fit_design(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
     if args.command == "restamp":
         return _restamp(args)
     if args.command == "material-check":
@@ -152,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fit_design(args)
     from .fit import PAPER_TEST_CASES, FitOptions, fit, summary_line
 
-    options = FitOptions(rank=args.rank, sensitivity_rank=args.sensitivity_rank, width=args.width, depth=args.depth, max_iterations=args.iterations,
+    options = FitOptions(rank=args.rank, sensitivity_rank=args.sensitivity_rank, width=args.width, depth=args.depth,
+                         max_iterations=args.iterations,
                          seed=args.seed, test_cases=tuple(args.test_case or PAPER_TEST_CASES))
     try:
         manifest = fit(args.snapshots, args.out, options, offgrid=args.offgrid, fe_error=args.fe_error)

@@ -119,8 +119,10 @@ def fit_design(design: Path, out: Path, options: FitOptions, *, held_out: Path |
     if test is not None and test.design.tissues != data.design.tissues:
         raise ValueError(f"--held-out: it varies {test.design.tissues}, the design {data.design.tissues}")
     if test is not None and test.displacement.shape[1] != data.displacement.shape[1]:
-        raise ValueError(f"--held-out: {test.displacement.shape[1]} nodes, the design's mesh {data.displacement.shape[1]}")
-    with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
+        raise ValueError(f"--held-out: {test.displacement.shape[1]} nodes, the design's mesh "
+                         f"{data.displacement.shape[1]}")
+    with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress,
+              leave=False) as bar:
         layers, pca, scaling, info = fit_design_surrogate(data, options, progress=bar.update)
     m = len(data.design.tissues)
     onnx_bytes = build_material_graph(layers, pca, m, jacobian=True).SerializeToString()
@@ -173,8 +175,9 @@ def _manifest(out: Path, data: DesignData, options: FitOptions, layers, pca: Pca
             iterations=info["iterations"], final_loss=info["final_loss"], seconds=info["seconds"], seed=info["seed"],
             n_train=info["n_train"], restarts=info["restarts"],
             output=(f"displacement = d x (mean + c(d, beta, theta) basis); displacement_std = d x sqrt(sum_i (sigma_i "
-                    f"(dc / dtheta_i) basis)^2), the network's own Jacobian; basis: u / d's {pca.n_primary or pca.rank} "
-                    f"modes, then {pca.rank - (pca.n_primary or pca.rank)} for what they leave of the S_i / d")),
+                    "(dc / dtheta_i) basis)^2), the network's own Jacobian; basis: u / d's "
+                    f"{pca.n_primary or pca.rank} modes, then {pca.rank - (pca.n_primary or pca.rank)} for what they "
+                    "leave of the S_i / d")),
         normalisation=folder.Normalisation(input_center=scaling.input_center.tolist(),
                                            input_scale=scaling.input_scale.tolist()),
         envelope=Envelope(displacement_mm=(0.0, d_max), angle_deg=(-design.angle_max_deg, design.angle_max_deg)),

@@ -185,8 +185,9 @@ def fe_label_map_estimate(path: Path, sweep_manifest) -> tuple[dict[str, float],
     text = (f"FE discretisation and voxelisation: estimated, not measured on this anatomy. The default phantom, "
             f"voxelised at {voxel:g} mm, meshed as this model was ({how}; {row['tets']:,} tets) and solved with its "
             f"element ({element}) at {data['case']}, is within these bounds of the phantom's converged estimate: its "
-            f"distance to the grid-convergence study's finest level ({row['finest_level_tets']:,} tets) plus that level's grid "
-            f"convergence index (Fs 1.25), max over the points (`python -m studies labelmap-truth`, {Path(path).name})")
+            f"distance to the grid-convergence study's finest level ({row['finest_level_tets']:,} tets) plus that "
+            "level's grid convergence index (Fs 1.25), max over the points (`python -m studies labelmap-truth`, "
+            f"{Path(path).name})")
     return bands, text
 
 
@@ -217,9 +218,10 @@ def fe_through_model(path: Path, model: folder.ModelFolder) -> tuple[dict[str, f
         groups.setdefault(" / ".join(f"{tets[float(s)]:,}" for s in used), []).append(case)
     on = "; ".join(f"levels of {levels} tets for {' and '.join(cases)}" for levels, cases in groups.items())
     text = (f"FE discretisation: this model against the converged estimate of a {data['element'].replace('_', '-')} "
-            f"grid-convergence study (the finest level plus its grid convergence index, Fs 1.25, point by point; {on}), "
-            f"max over the cases, plus the surrogate error of the model it measured ({data['provenance']['commit'][:7] if 'provenance' in data else data.get('model', '?')}), which bounds this mesh's FE from that model's answer "
-            f"(`python -m studies model-vs-converged`, {Path(path).name})")
+            "grid-convergence study (the finest level plus its grid convergence index, Fs 1.25, "
+            f"point by point; {on}), max over the cases, plus the surrogate error of the model it measured "
+            f"({data['provenance']['commit'][:7] if 'provenance' in data else data.get('model', '?')}), which bounds "
+            f"this mesh's FE from that model's answer (`python -m studies model-vs-converged`, {Path(path).name})")
     return bands, text
 
 
@@ -232,7 +234,8 @@ def restamp(model: Path, fe_error: Path) -> folder.ModelManifest:
 
     current = folder.read_model_folder(model)
     surrogate = {k: r.surrogate_mm for k, r in current.manifest.accuracy.regions.items()}
-    manifest = current.manifest.model_copy(update={"accuracy": _accuracy(surrogate, fe_through_model(fe_error, current))})
+    accuracy = _accuracy(surrogate, fe_through_model(fe_error, current))
+    manifest = current.manifest.model_copy(update={"accuracy": accuracy})
     atomic_write_text(Path(model) / "report.md", table3_markdown(manifest, PAPER_TABLE3))
     manifest = manifest.model_copy(update={"files": {**manifest.files, "report.md": sha256(Path(model) / "report.md")}})
     atomic_write_text(Path(model) / "manifest.json", manifest.model_dump_json(indent=2) + "\n")
@@ -313,7 +316,8 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
         where = f" up to {cut.valid_up_to_mm:g} mm, where the sweep stops being valid," if cut is not None else ""
         raise ValueError(f"--rank: {len(rows)} snapshots{where} are left to train on once {int(test.sum())} are held "
                          f"out; {options.rank} modes need at least {options.rank + 1}")
-    with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress, leave=False) as bar:
+    with tqdm(total=options.max_iterations, desc="training (L-BFGS iterations)", disable=not progress,
+              leave=False) as bar:
         surrogate = fit_surrogate(inputs, rows, options, sensitivity=sens_rows, progress=bar.update,
                                   sensitivity_weights=theta_rms(materials) if materials is not None else None)
     onnx_bytes = surrogate.onnx_bytes()
@@ -329,13 +333,14 @@ def fit(snapshots: Path, out: Path, options: FitOptions, *, offgrid: Path | None
     onnx_out = {"displacement": "float32 [batch, k, 3] mm"}
     output = "displacement = d x decoded field (exactly 0 at rest)"
     if materials is not None:
-        onnx_in.update(materials=f"float32 [batch, {surrogate.n_materials}], optional, {materials.parameter} per tissue "
-                       "in materials.inputs order (0 = nominal)",
+        onnx_in.update(materials=f"float32 [batch, {surrogate.n_materials}], optional, {materials.parameter} per "
+                       "tissue in materials.inputs order (0 = nominal)",
                        materials_std=f"float32 [batch, {surrogate.n_materials}], optional, the std of ln E (0 = none)")
         onnx_out["displacement_std"] = "float32 [batch, k, 3] mm, sqrt(sum_i (S_i sigma_i)^2) per component"
         output = (f"displacement = d x (f0 + sum_i theta_i s_i), f0 and s_i = S_i / d decoded by one basis (u / d's "
                   f"{surrogate.pca.n_primary} modes, then {surrogate.pca.rank - surrogate.pca.n_primary} for what they "
-                  "leave of the S_i / d) from (1 + m) x basis rank network outputs; displacement_std = d x sqrt(sum_i (sigma_i s_i)^2) (exactly 0 at rest)")
+                  "leave of the S_i / d) from (1 + m) x basis rank network outputs; displacement_std = d x sqrt(sum_i "
+                  "(sigma_i s_i)^2) (exactly 0 at rest)")
     manifest = folder.ModelManifest(
         name=Path(out).name,
         created_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -376,8 +381,8 @@ def pca_method(pca: Pca) -> str:
 
 def summary_line(manifest: folder.ModelManifest) -> str:
     m = manifest.metrics
-    line = (f"rank {manifest.pca.rank} (energy {manifest.pca.energy:.8f}), train {manifest.timing.train_seconds:.1f} s; "
-            f"Table 3 samples: e_NN {m.table3_summary.e_nn_mm:.4f} mm, alpha {m.table3_summary.alpha_deg:.3f} deg, "
+    line = (f"rank {manifest.pca.rank} (energy {manifest.pca.energy:.8f}), train {manifest.timing.train_seconds:.1f} "
+            f"s; Table 3 samples: e_NN {m.table3_summary.e_nn_mm:.4f} mm, alpha {m.table3_summary.alpha_deg:.3f} deg, "
             f"e_r {m.table3_summary.e_r_percent:.3f} %")
     if m.offgrid_summary:
         line += f"; off-grid ({m.offgrid_summary.n_cases}): e_NN {m.offgrid_summary.e_nn_mm:.4f} mm"
@@ -394,5 +399,5 @@ def summary_line(manifest: folder.ModelManifest) -> str:
 def cut_line(cut: folder.EnvelopeCut) -> str:
     """One sentence on an envelope cut: where, how many snapshots were left out, and why."""
     d0, d1 = cut.sweep_envelope.displacement_mm
-    return (f"envelope cut to 0..{cut.valid_up_to_mm:g} mm (the sweep covers {d0:g}..{d1:g}): {cut.n_excluded} snapshots "
-            f"left out, {cut.n_inverted} of them inverted (det(I + grad u) <= 0, min {cut.min_det_f:.3g})")
+    return (f"envelope cut to 0..{cut.valid_up_to_mm:g} mm (the sweep covers {d0:g}..{d1:g}): {cut.n_excluded} "
+            f"snapshots left out, {cut.n_inverted} of them inverted (det(I + grad u) <= 0, min {cut.min_det_f:.3g})")

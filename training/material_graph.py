@@ -86,11 +86,13 @@ def _jacobian_nodes(layers, m: int) -> tuple[list, list]:
     return inits, nodes
 
 
-def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32, jacobian: bool = False) -> onnx.ModelProto:
+def build_material_graph(layers, pca: Pca, n_materials: int, *, dtype=np.float32,
+                         jacobian: bool = False) -> onnx.ModelProto:
     """The material model's ONNX graph (module docstring); `dtype` is the basis precision. With `jacobian`, a design
     model's: the network takes theta, u is its decode at theta, and the S_i are its Jacobian's (no first order)."""
     if jacobian and len(layers) != 2:
-        raise ValueError(f"--depth: a design model's graph computes the Jacobian of one hidden layer, got {len(layers) - 1}")
+        raise ValueError("--depth: a design model's graph computes the Jacobian of one hidden layer, got "
+                         f"{len(layers) - 1}")
     m, n_comp, rank = n_materials, pca.basis.shape[1], pca.basis.shape[0]
     basis_init, cast, basis = basis_nodes(pca, dtype)
     net_inits, nodes = _jacobian_nodes(layers, m) if jacobian else network_nodes(layers)

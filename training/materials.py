@@ -7,9 +7,9 @@ together, and the network gives (1 + m) x rank coefficients (material_graph.py d
 
 The check (`python -m training material-check --model M --cases DIR`) reads the cases `fem_offline
 material-cases` solved: at a few guide positions, the nominal u0 and S_i, and fresh FE solves at material points
-theta (each tissue at both ends of its range, and two corners where they alternate between their ends). Per region it records the largest error of
-the first-order model u0 + sum S_i theta_i against the fresh solve (the material part alone), and of the served
-ONNX model against it (surrogate + first order), into the manifest's materials.accuracy.
+theta (each tissue at both ends of its range, and two corners where they alternate between their ends). Per region it
+records the largest error of the first-order model u0 + sum S_i theta_i against the fresh solve (the material part
+alone), and of the served ONNX model against it (surrogate + first order), into the manifest's materials.accuracy.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ from contracts.scene import Scene
 CASE_GLOB = "material_*.npz"
 
 
-def sensitivity_rows(sensitivity: dict[str, np.ndarray] | None, inputs: np.ndarray, keep: np.ndarray) -> list[np.ndarray]:
+def sensitivity_rows(sensitivity: dict[str, np.ndarray] | None, inputs: np.ndarray,
+                     keep: np.ndarray) -> list[np.ndarray]:
     """Per material tissue the rows S_i / d (n_kept, 3 n_nodes) of the kept snapshots (as training_set keeps u / d)."""
     if not sensitivity:
         return []
@@ -101,8 +102,9 @@ def first_order_errors(cases: list[dict], session, node_sets: dict, regions: tup
                 worst[r] = [max(w, float(e[ids].max())) for w, e in zip(worst[r], errors)]
             n += 1
     points = ", ".join(f"{c['guide'][0]:g} mm / {c['guide'][1]:g} deg" for c in cases)
-    reference = (f"fresh FE solves on the model's mesh at {n} material points (each tissue at both ends of its declared "
-                 f"range, then the two corners where the tissues alternate between their ends), at the guide positions {points}: the first-order model u0 + sum_i "
+    reference = (f"fresh FE solves on the model's mesh at {n} material points (each tissue at both ends of its "
+                 "declared range, then the two corners where the tissues alternate between their ends), at the guide "
+                 f"positions {points}: the first-order model u0 + sum_i "
                  "S_i ln(E_i/E_i0) from the nominal state's sensitivities, and the ONNX model, against them")
     if not n:
         raise ValueError("--cases: the FE found no equilibrium at any material point; there is nothing to compare")

@@ -50,11 +50,11 @@ def table3_markdown(manifest: ModelManifest, paper: dict) -> str:
         c = manifest.envelope_cut
         dropped = ", ".join(f"{d:g} mm / {a:g}°" for d, a in c.dropped_test_cases) or "none"
         lines += ["", "## Envelope cut: where the sweep stops being a deformation", "",
-                  f"The sweep covers {c.sweep_envelope.displacement_mm[0]:g} to {c.sweep_envelope.displacement_mm[1]:g} mm, "
-                  f"but {c.n_inverted} of its snapshots turn an element inside out (det(I + ∇u) ≤ 0, min "
-                  f"{c.min_det_f:.3g}). This model was trained on, and answers for, 0 to {c.valid_up_to_mm:g} mm only: "
-                  f"{c.n_excluded} snapshots beyond it were left out. Held-out cases beyond it, not evaluated: {dropped}; "
-                  f"off-grid cases beyond it: {c.n_dropped_offgrid}."]
+                  f"The sweep covers {c.sweep_envelope.displacement_mm[0]:g} to "
+                  f"{c.sweep_envelope.displacement_mm[1]:g} mm, but {c.n_inverted} of its snapshots turn an element "
+                  f"inside out (det(I + ∇u) ≤ 0, min {c.min_det_f:.3g}). This model was trained on, and answers for, 0 "
+                  f"to {c.valid_up_to_mm:g} mm only: {c.n_excluded} snapshots beyond it were left out. Held-out cases "
+                  f"beyond it, not evaluated: {dropped}; off-grid cases beyond it: {c.n_dropped_offgrid}."]
     if m.offgrid_summary:
         o = m.offgrid_summary
         lines += ["", f"## Off-grid cases ({o.n_cases}, random inside the envelope, solved by `fem_offline cases`)", "",
@@ -74,7 +74,8 @@ def _accuracy_lines(manifest: ModelManifest) -> list[str]:
     """The end-to-end table: surrogate + FE discretisation, per region, and what it is measured against."""
     acc = manifest.accuracy
     lines = ["## End to end: against the converged physics", "", f"Measured against {acc.reference}.", "",
-             "| region | surrogate vs its FE (mm) | FE discretisation (mm) | end-to-end bound (mm) |", "|---|---|---|---|"]
+             "| region | surrogate vs its FE (mm) | FE discretisation (mm) | end-to-end bound (mm) |",
+             "|---|---|---|---|"]
     for name, r in acc.regions.items():
         lines.append(f"| {name} | {r.surrogate_mm:.4f} | {_mm(r.fe_discretisation_mm)} | {_mm(r.end_to_end_mm)} |")
     return lines + [""]
@@ -94,18 +95,20 @@ def _material_lines(manifest: ModelManifest) -> list[str]:
     lines = ["## Material inputs", "", f"Each input is {info.parameter}; the answer is first order in it.", "",
              "| tissue | nominal E (kPa) | range (kPa) | default std (%) | source |", "|---|---|---|---|---|"]
     for m in info.inputs:
-        lines.append(f"| {m.tissue} | {m.nominal_youngs_kpa:g} | {m.youngs_kpa_range[0]:g} to {m.youngs_kpa_range[1]:g} | "
-                     f"{m.std_percent:g} | {m.source} |")
+        lines.append(f"| {m.tissue} | {m.nominal_youngs_kpa:g} | {m.youngs_kpa_range[0]:g} to "
+                     f"{m.youngs_kpa_range[1]:g} | {m.std_percent:g} | {m.source} |")
     acc = info.accuracy
     if acc is None:
         return lines + ["", "The first-order material model is not checked against fresh FE solves for this model "
                         "(`python -m training material-check`).", ""]
     lines += ["", f"Checked against {acc.reference}. End to end: the model against the fresh solves plus the FE "
               "discretisation error of this mesh (above), where measured.", "",
-              "| region | first order vs fresh FE (mm) | model vs fresh FE (mm) | end to end (mm) |", "|---|---|---|---|"]
+              "| region | first order vs fresh FE (mm) | model vs fresh FE (mm) | end to end (mm) |",
+              "|---|---|---|---|"]
     for k, r in acc.regions.items():
         fe = manifest.accuracy.regions[k].fe_discretisation_mm if k in manifest.accuracy.regions else None
-        lines.append(f"| {k} | {r.first_order_mm:.4f} | {r.model_mm:.4f} | {_mm(None if fe is None else r.model_mm + fe)} |")
+        lines.append(f"| {k} | {r.first_order_mm:.4f} | {r.model_mm:.4f} | "
+                     f"{_mm(None if fe is None else r.model_mm + fe)} |")
     return lines + [""]
 
 
@@ -114,8 +117,8 @@ def design_markdown(manifest: ModelManifest, checked: dict | None) -> str:
     lines = [f"# Model `{manifest.name}`: a design model over the stiffness box", "",
              f"Scene `{manifest.scene.name}` (sha256 {manifest.scene.sha256[:12]}), {manifest.mesh.n_nodes} nodes, "
              f"{manifest.mesh.n_tets} quadratic tets. PCA rank {manifest.pca.rank}; MLP 1x{manifest.network.width} "
-             f"tanh on (d, beta, theta), fitted to values and theta-derivatives in {manifest.timing.train_seconds:.1f} s "
-             f"on {manifest.network.n_train} snapshots.", ""]
+             f"tanh on (d, beta, theta), fitted to values and theta-derivatives in {manifest.timing.train_seconds:.1f} "
+             f"s on {manifest.network.n_train} snapshots.", ""]
     if checked is None:
         return "\n".join([*lines, "Not checked against held-out FE (no `--held-out` design).", ""])
     lines += [f"Against fresh FE at {checked['n_points']} held-out material points x (-beta, beta) "

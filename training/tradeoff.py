@@ -112,7 +112,8 @@ def _marker_error(level: dict, finest: dict, analysis: dict) -> float:
     worst = 0.0
     for case, row in analysis["cases"].items():
         band = np.array([r["gci_vector_mm"] for r in row["markers"]])  # (8,)
-        gap = np.linalg.norm(np.asarray(level["cases"][case]["markers"]) - np.asarray(finest["cases"][case]["markers"]), axis=1)
+        gap = np.linalg.norm(np.asarray(level["cases"][case]["markers"]) - np.asarray(finest["cases"][case]["markers"]),
+                             axis=1)
         worst = max(worst, float((gap + band).max()))
     return worst
 
@@ -130,9 +131,11 @@ def level_errors(study: dict) -> list[LevelFe]:
             fe = dict(bands)
         elif this == key[-2]:
             fe = gci_bands(analysis, "medium")
-        elif this == key[-3] and all("bound_coarse_mm" in r for row in analysis["cases"].values() for r in row["markers"]):
+        elif this == key[-3] and all("bound_coarse_mm" in r for row in analysis["cases"].values()
+                                     for r in row["markers"]):
             fe = gci_bands(analysis, "coarse")  # studies analysed since the coarse bound was stored
-        elif f"{lv['scale']:g}" in analysis["cases"][next(iter(analysis["cases"]))]["all_nodes"].get("bound_by_scale_mm", {}):
+        elif f"{lv['scale']:g}" in (analysis["cases"][next(iter(analysis["cases"]))]["all_nodes"]
+                                    .get("bound_by_scale_mm", {})):
             fe = gci_bands(analysis, f"{lv['scale']:g}")  # a level under the three (studies with four levels)
         else:
             fe = {"markers": _marker_error(lv, finest, analysis)}

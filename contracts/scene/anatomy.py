@@ -64,7 +64,8 @@ def sd_box(points: np.ndarray, lo, hi) -> np.ndarray:
 def sd_x_bar(points: np.ndarray, centre, radius: float, length: float) -> np.ndarray:
     """Signed distance (k,) to a capped cylinder along x (the pubic bone)."""
     c = np.asarray(centre)
-    d = np.stack([np.linalg.norm(points[:, 1:] - c[1:], axis=1) - radius, np.abs(points[:, 0] - c[0]) - length / 2], axis=1)
+    d = np.stack([np.linalg.norm(points[:, 1:] - c[1:], axis=1) - radius, np.abs(points[:, 0] - c[0]) - length / 2],
+                 axis=1)
     return np.linalg.norm(np.maximum(d, 0), axis=1) + np.minimum(d.max(axis=1), 0)
 
 
@@ -134,7 +135,8 @@ def problems(ph: Phantom) -> list[str]:
     if wall < MIN_WALL_MM:
         found.append(f"the rectal wall is {wall:.2f} mm thick, less than {MIN_WALL_MM} mm "
                      "(rectum_outer_radius_mm - rectum_inner_radius_mm)")
-    fields = {"prostate": "prostate_center_mm, prostate_semi_axes_mm", "bladder": "bladder_center_mm, bladder_radius_mm",
+    fields = {"prostate": "prostate_center_mm, prostate_semi_axes_mm",
+              "bladder": "bladder_center_mm, bladder_radius_mm",
               "pubic_bone": "pubic_center_mm, pubic_radius_mm, pubic_length_mm", "spine": "spine_box_mm",
               "lumen": "rectum_center_xy_mm, rectum_inner_radius_mm",
               "rectal_wall": "rectum_center_xy_mm, rectum_outer_radius_mm"}
@@ -173,7 +175,8 @@ def tip_problem(ph: Phantom, guide: Guide) -> str | None:
 
 
 def describe(ph: Phantom) -> dict:
-    """The figures that tell variants apart: prostate size and offset, rectal wall, the tissue between lumen and prostate."""
+    """The figures that tell variants apart: prostate size and offset, rectal wall,
+    the tissue between lumen and prostate."""
     a = np.asarray(ph.prostate_semi_axes_mm)
     gaps = clearances_mm(ph)
     default_centre = type(ph).model_fields["prostate_center_mm"].default

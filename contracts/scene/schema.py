@@ -92,11 +92,14 @@ class MaterialInput(_Strict):
         data = {k: v for k, v in data.items() if k not in ("youngs_kpa_range", "source")}
         measured = data.pop("measured_youngs_kpa")
         percent = data.get("std_percent")
-        if not (isinstance(measured, (int, float)) and measured > 0 and isinstance(percent, (int, float)) and 0 < percent <= 100):
-            raise ValueError("measured_youngs_kpa must be a positive E in kPa, with std_percent (0 < % <= 100) its 1-sigma")
+        if not (isinstance(measured, (int, float)) and measured > 0 and isinstance(percent, (int, float))
+                and 0 < percent <= 100):
+            raise ValueError("measured_youngs_kpa must be a positive E in kPa, with std_percent "
+                             "(0 < % <= 100) its 1-sigma")
         half = MEASURED_BOX_SIGMAS * sigma_ln_e(std=percent, value=100.0)
         data["youngs_kpa_range"] = (measured * math.exp(-half), measured * math.exp(half))
-        data["source"] = f"measured {measured:g} kPa, std {percent:g} %: the range is +- {MEASURED_BOX_SIGMAS:g} sigma of ln E"
+        data["source"] = (f"measured {measured:g} kPa, std {percent:g} %: the range is +- {MEASURED_BOX_SIGMAS:g} "
+                          "sigma of ln E")
         return data
 
     @model_validator(mode="after")
@@ -165,7 +168,8 @@ class LabelMap(_Strict):
     @model_validator(mode="after")
     def _distinct(self) -> LabelMap:
         # a dumped scene carries the default, so only another value is refused
-        if self.facet_distance_voxels != LabelMap.model_fields["facet_distance_voxels"].default and self.mesher != "cgal":
+        default = LabelMap.model_fields["facet_distance_voxels"].default
+        if self.facet_distance_voxels != default and self.mesher != "cgal":
             raise ValueError(f"facet_distance_voxels is CGAL's; mesher {self.mesher!r} does not use it")
         values = list(self.labels.values())
         if len(set(values)) != len(values):

@@ -9,8 +9,8 @@ A point of the lumen surface at its current position x = X + u has the gap g = |
 penetration p = -g - o. The faceted lumen lies inside the round one (a chord's sag, 0.06 mm on the
 tiny phantom's 2.5 mm faces), so at rest some points would already lie inside the sphere; like a
 strain-free adjustment of initial overclosure, o_q = max(R - |X_q - c_0|, 0) is removed from each
-point's penetration, so that the rest state is exactly free of contact (o -> 0 as h^2). Augmented Lagrangian at the quadrature points q of the lumen faces (scikit-fem
-FacetBasis on the reference surface, area weights w_q):
+point's penetration, so that the rest state is exactly free of contact (o -> 0 as h^2). Augmented Lagrangian at the
+quadrature points q of the lumen faces (scikit-fem FacetBasis on the reference surface, area weights w_q):
 
     Pi_c(u)   = sum_q w_q (<lam_q + k p_q>^2 - lam_q^2) / (2 k)
     pressure  t_q = <lam_q + k p_q>  (kPa, per reference area),  n_q = (x_q - c) / |x_q - c|

@@ -62,7 +62,8 @@ def settle_contact(problem: Problem, u: np.ndarray, g: np.ndarray, cache: Factor
         touch = ct.evaluate(surface, u, load)
         depth = float(max(touch.penetration.max(), 0.0))
         if depth <= surface.tol_mm:
-            return u, load.multipliers, replace(stats, contact_updates=stats.contact_updates + update, penetration_mm=depth)
+            return u, load.multipliers, replace(stats, contact_updates=stats.contact_updates + update,
+                                                penetration_mm=depth)
         if update == MAX_CONTACT_UPDATES:
             break
         load = ct.Load(load.centre, touch.pressure)
@@ -135,10 +136,11 @@ def solve_path(problem: Problem, displacements_mm, angle_deg: float, state: Path
             except ConvergenceError as exc:
                 raise ConvergenceError(
                     f"no equilibrium found for guide displacement {target:.4g} mm at beta {angle_deg:g} deg "
-                    f"(last converged: {last:.4g} mm; load step halved {problem.scene.solver.max_halvings} times): {exc}",
-                    exc.stats,
+                    f"(last converged: {last:.4g} mm; load step halved {problem.scene.solver.max_halvings} times): "
+                    f"{exc}", exc.stats,
                 ) from None
             log.info("%.4g mm at beta %g deg: %d Newton iterations, %d CG, %d factorisations, %.1f s so far",
-                     target, angle_deg, stats.iterations, stats.cg_iterations, stats.factorizations, time.perf_counter() - t0)
+                     target, angle_deg, stats.iterations, stats.cg_iterations, stats.factorizations,
+                     time.perf_counter() - t0)
         out = (float(d), state.u.reshape(-1, 3).copy(), replace(stats, seconds=time.perf_counter() - t0))
         yield (*out, state) if with_state else out

@@ -97,7 +97,8 @@ def det_f_cubic(problem: Problem, modes: LinearModes, angle_deg: float) -> np.nd
 
 
 def det_f(problem: Problem, modes: LinearModes, displacements_mm, angle_deg: float) -> np.ndarray:
-    """det(I + grad u) (n_d, n_active, n_qp) at every quadrature point of the assembled tets, for each d at one angle."""
+    """det(I + grad u) (n_d, n_active, n_qp) at every quadrature point of the assembled tets,
+    for each d at one angle."""
     c = det_f_cubic(problem, modes, angle_deg)
     d = np.asarray(displacements_mm, dtype=np.float64)[:, None, None]
     return c[0] + d * (c[1] + d * (c[2] + d * c[3]))

@@ -74,7 +74,8 @@ class _Pardiso:
         i32 = ctypes.POINTER(ctypes.c_int32)
         ps._mkl_pardiso(
             ps.pt.ctypes.data_as(ctypes.POINTER(ps._pt_type[0])), ctypes.byref(ctypes.c_int32(1)),
-            ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.mtype)), ctypes.byref(ctypes.c_int32(phase)),
+            ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(self.mtype)),
+            ctypes.byref(ctypes.c_int32(phase)),
             ctypes.byref(ctypes.c_int32(self.n)), self._a.ctypes.data_as(ctypes.c_void_p), self._ia.ctypes.data_as(i32),
             self._ja.ctypes.data_as(i32), ps.perm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(1)),
             ps.iparm.ctypes.data_as(i32), ctypes.byref(ctypes.c_int32(0)), b.ctypes.data_as(ctypes.c_void_p),
@@ -224,10 +225,12 @@ class AmgSolve:
         from scipy.sparse.linalg import cg
 
         count = [0]
-        x, info = cg(self._K, b, rtol=self.rtol, maxiter=5000, M=self._M, callback=lambda _: count.__setitem__(0, count[0] + 1))
+        x, info = cg(self._K, b, rtol=self.rtol, maxiter=5000, M=self._M,
+                     callback=lambda _: count.__setitem__(0, count[0] + 1))
         self.iterations.append(count[0])
         if info != 0:
-            raise np.linalg.LinAlgError(f"AMG-preconditioned CG did not reach rtol {self.rtol} in {count[0]} iterations")
+            raise np.linalg.LinAlgError(f"AMG-preconditioned CG did not reach rtol {self.rtol} "
+                                        f"in {count[0]} iterations")
         log.info("AMG-CG: %d iterations", count[0])
         return x
 

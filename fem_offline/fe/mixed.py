@@ -82,7 +82,8 @@ def pressure_space(vertices: np.ndarray, N: np.ndarray, W: np.ndarray, tissue: n
     index = index.reshape(vertices.shape)
     n = int(index.max()) + 1
     Me = np.einsum("eq,eqa,eqb->eab", W / lam[:, None], N, N)
-    rows, cols = np.broadcast_to(index[:, :, None], (*index.shape, 4)), np.broadcast_to(index[:, None, :], (*index.shape, 4))
+    rows = np.broadcast_to(index[:, :, None], (*index.shape, 4))
+    cols = np.broadcast_to(index[:, None, :], (*index.shape, 4))
     mass = sp.csr_matrix((Me.ravel(), (rows.ravel(), cols.ravel())), shape=(n, n))
     rows = np.broadcast_to(index[:, :, None], (*index.shape, 30)).ravel()
     cols = np.broadcast_to(edofs[:, None, :], (len(edofs), 4, 30)).ravel()

@@ -118,7 +118,8 @@ def residual(p: Problem, u: np.ndarray) -> Eval:
     return Eval(r, min_j, pi, Finv, J, touch)
 
 
-def _loads_and_contact(p: Problem, u: np.ndarray, P: np.ndarray, pi: float) -> tuple[np.ndarray, float, ct.State | None]:
+def _loads_and_contact(p: Problem, u: np.ndarray, P: np.ndarray,
+                       pi: float) -> tuple[np.ndarray, float, ct.State | None]:
     """r = f_int(P) - f_gravity + the tip's contact force, and Pi plus the contact energy."""
     r = assemble_vector(p.pattern, el.internal_force(p.G, p.W, P))
     if p.body_force is not None:

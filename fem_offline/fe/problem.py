@@ -1,8 +1,8 @@
 """The discrete problem: P2 basis data, per-tet materials, constraints and loads for the effects a scene switches on.
 
 Materials: materials.py; boundary conditions (bones, table, guide): boundary.py and guide.py;
-gravity: gravity.py; the guide tip's contact with the wall: contact.py. Tets whose nodes are all fixed (the bones) cannot change K_II and are not
-assembled.
+gravity: gravity.py; the guide tip's contact with the wall: contact.py. Tets whose nodes are all fixed (the bones)
+cannot change K_II and are not assembled.
 """
 
 from __future__ import annotations
@@ -72,7 +72,8 @@ class Problem:
         if self.contact is None:
             return self
         lam = np.zeros(self.contact.shape) if multipliers is None else multipliers
-        return replace(self, contact_load=ct.Load(ct.centre(self.contact, self.scene.guide, displacement_mm, angle_deg), lam))
+        centre = ct.centre(self.contact, self.scene.guide, displacement_mm, angle_deg)
+        return replace(self, contact_load=ct.Load(centre, lam))
 
     def with_solver(self, **controls) -> Problem:
         """This problem with some of scene.solver's controls changed (e.g. max_step_mm, max_halvings)."""

@@ -1,4 +1,5 @@
-"""Where the linear model stops being a deformation: det(I + grad u) per case, the tets it inverts, the tissue under the tip.
+"""Where the linear model stops being a deformation: det(I + grad u) per case, the tets it inverts,
+the tissue under the tip.
 
 Small strain lets u grow without limit in d while det F = det(I + grad u) is a cubic in d at every
 quadrature point (linear.det_f_cubic). Past its first root some element is inside out. This module
@@ -203,7 +204,8 @@ def valid_up_to(curves: list[AngleCurve]) -> float:
     return valid_up_to_mm(d, [x for c in curves for x in c.displacements_mm[c.min_det_f <= 0]])
 
 
-def tissue_along_axis(problem: Problem, *, length_mm: float = 25.0, step_mm: float = 0.05) -> list[tuple[str, float, float]]:
+def tissue_along_axis(problem: Problem, *, length_mm: float = 25.0,
+                      step_mm: float = 0.05) -> list[tuple[str, float, float]]:
     """(tissue, from mm, to mm) runs along the guide's push axis (beta = 0) from the tip into the body."""
     mesh = problem.mesh
     s = np.arange(0.0, length_mm + step_mm / 2, step_mm)
@@ -216,7 +218,8 @@ def tissue_along_axis(problem: Problem, *, length_mm: float = 25.0, step_mm: flo
 
 
 def recorded_min_det_f(manifest) -> np.ndarray:
-    """(n_angles, n_displacements) min det F a sweep's snapshots record (contracts.sweep manifest); NaN where missing."""
+    """(n_angles, n_displacements) min det F a sweep's snapshots record (contracts.sweep manifest);
+    NaN where missing."""
     grid = manifest.grid
     table = np.full((len(grid.angles_deg), len(grid.displacements_mm)), np.nan)
     for r in manifest.snapshots:
@@ -227,7 +230,8 @@ def recorded_min_det_f(manifest) -> np.ndarray:
 def linear_bound_table(problem: Problem, displacements_mm, angles_deg) -> np.ndarray:
     """(n_angles, n_displacements) min_det_f_bound of the linear model's answer at every (d, beta) of a grid."""
     modes, at_corners = linear_modes(problem), corners(problem)
-    return np.array([[min_det_f_bound(at_corners, superpose(modes, d, a)) for d in displacements_mm] for a in angles_deg])
+    return np.array([[min_det_f_bound(at_corners, superpose(modes, d, a)) for d in displacements_mm]
+                     for a in angles_deg])
 
 
 def snapshot_table(folder: Path, manifest, measure) -> np.ndarray:

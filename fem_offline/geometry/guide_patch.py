@@ -42,7 +42,8 @@ def _lumen_faces(mesh: TetMesh) -> np.ndarray:
     ext, owner = boundary_faces(mesh.tets)
     faces = ext[mesh.tissue[owner] == mesh.tissue_names.index("rectal_wall")][:, :3]
     if faces.size == 0:
-        raise ValueError("guide.snap_mm: the rectal wall has no exterior (lumen) surface; is the lumen labelled outside?")
+        raise ValueError("guide.snap_mm: the rectal wall has no exterior (lumen) surface; "
+                         "is the lumen labelled outside?")
     return faces
 
 
@@ -95,8 +96,9 @@ def tip(mesh: TetMesh, guide: Guide) -> np.ndarray:
     where = seat(mesh, guide)
     if where.offset_mm > guide.snap_mm:
         along = " along the guide axis" if guide.snap_to == "axis" else ""
-        raise ValueError(f"guide.tip_mm: {list(guide.tip_mm)} is {where.offset_mm:.2f} mm{along} from the rectal wall's "
-                         f"lumen surface (at {np.round(where.point, 2).tolist()}), more than guide.snap_mm = {guide.snap_mm}")
+        raise ValueError(f"guide.tip_mm: {list(guide.tip_mm)} is {where.offset_mm:.2f} mm{along} from the rectal "
+                         f"wall's lumen surface (at {np.round(where.point, 2).tolist()}), more than guide.snap_mm = "
+                         f"{guide.snap_mm}")
     return where.point
 
 

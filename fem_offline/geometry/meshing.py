@@ -1,4 +1,5 @@
-"""The mesh a scene describes: the gmsh phantom, a user's tet mesh or a label map's, made P2, with its named node sets."""
+"""The mesh a scene describes: the gmsh phantom, a user's tet mesh or a label map's, made P2,
+with its named node sets."""
 
 from __future__ import annotations
 

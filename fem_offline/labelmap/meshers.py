@@ -64,7 +64,8 @@ class VoxelTissues:
 
 
 def voxel_tissues(image: LabelImage, spec: LabelMap) -> VoxelTissues:
-    """The tissue of each voxel from the scene's label table; ValueError naming the field for an unknown or empty label."""
+    """The tissue of each voxel from the scene's label table;
+    ValueError naming the field for an unknown or empty label."""
     values, counts = np.unique(image.labels, return_counts=True)
     present = dict(zip(values.tolist(), counts.tolist()))
     known = set(spec.labels.values()) | set(spec.outside) | {0}
@@ -136,7 +137,8 @@ def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide,
     sub = tissues.index.astype(np.int16) + 1  # CGAL: 0 = outside, tissue t = t + 1
     shape = np.array(sub.shape)
     centres = image.to_physical(np.stack(np.meshgrid(*(np.arange(k) for k in shape), indexing="ij"), -1).reshape(-1, 3))
-    near_tip = (np.linalg.norm(centres - np.asarray(guide.tip_mm), axis=1) < 1.5 * guide.patch_radius_mm).reshape(sub.shape)
+    near_tip = (np.linalg.norm(centres - np.asarray(guide.tip_mm), axis=1)
+                < 1.5 * guide.patch_radius_mm).reshape(sub.shape)
     near_tip &= sub > 0
     sub[near_tip] += n  # tissue t near the tip = t + 1 + n
     sizes = {t + 1: (size.prostate_mm if name == "prostate" else size.max_mm) for t, name in enumerate(tissues.names)}
@@ -145,7 +147,8 @@ def _cgal(tissues: VoxelTissues, *, size: MeshSize, guide: Guide,
     with _quiet_native_output():  # CGAL prints its progress whatever `verbose` says
         mesh = pygalmesh.generate_from_array(
             np.pad(sub, 1).astype(np.uint8), spacing, max_cell_circumradius=sizes,
-            max_facet_distance=facet_distance_voxels * float(min(spacing)), max_radius_surface_delaunay_ball=size.prostate_mm,
+            max_facet_distance=facet_distance_voxels * float(min(spacing)),
+            max_radius_surface_delaunay_ball=size.prostate_mm,
             min_facet_angle=25.0, max_circumradius_edge_ratio=3.0, verbose=False, seed=0)
     tets = mesh.get_cells_type("tetra").astype(np.int64)
     label = mesh.get_cell_data("medit:ref", "tetra").astype(np.int64)
@@ -165,7 +168,8 @@ def _interfaces(tissues: VoxelTissues, guide: Guide):
 
 
 def _tetgen(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """TetGen (constrained Delaunay, -pYq) on the smoothed interfaces: points (n, 3) in voxel index coordinates, tets (m, 4), tissue (m,).
+    """TetGen (constrained Delaunay, -pYq) on the smoothed interfaces: points (n, 3) in voxel index coordinates,
+    tets (m, 4), tissue (m,).
 
     The interface triangles are kept as they are (-Y), so the tissues are bonded along them; each
     closed region TetGen finds (-A) takes the tissue most of its volume's voxels hold. The size is
@@ -184,7 +188,8 @@ def _tetgen(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.
 
 
 def _tissue_by_region(points: np.ndarray, tets: np.ndarray, region: np.ndarray, tissues: VoxelTissues) -> np.ndarray:
-    """Tissue (m,) of each tet: the tissue of most of its region's volume by the voxel at each tet's centroid; OUTSIDE regions are dropped later."""
+    """Tissue (m,) of each tet: the tissue of most of its region's volume by the voxel at each tet's centroid;
+    OUTSIDE regions are dropped later."""
     ids, region = np.unique(region, return_inverse=True)
     shape = np.array(tissues.index.shape)
     voxel = np.clip(np.rint(points[tets].mean(axis=1)).astype(int), 0, shape - 1)
@@ -198,7 +203,8 @@ def _tissue_by_region(points: np.ndarray, tets: np.ndarray, region: np.ndarray, 
 
 
 def _ftetwild(tissues: VoxelTissues, *, size: MeshSize, guide: Guide) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """fTetWild on the smoothed interfaces, sized like the phantom: points (n, 3) in voxel index coordinates, tets (m, 4), tissue (m,) by centroid voxel."""
+    """fTetWild on the smoothed interfaces, sized like the phantom: points (n, 3) in voxel index coordinates,
+    tets (m, 4), tissue (m,) by centroid voxel."""
     import pytetwild
 
     image = tissues.image

@@ -12,7 +12,8 @@ import numpy as np
 
 
 def _candidate_pairs(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Triangle pairs (k, 2), i < j, whose bounding boxes overlap: a uniform grid of the boxes, then the overlap test."""
+    """Triangle pairs (k, 2), i < j, whose bounding boxes overlap: a uniform grid of the boxes,
+    then the overlap test."""
     p = v[tri]  # (m, 3, 3)
     lo, hi = p.min(axis=1), p.max(axis=1)
     h = 2.0 * float(np.median((hi - lo).max(axis=1)))
@@ -21,7 +22,8 @@ def _candidate_pairs(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
     n = b - a + 1
     count = n.prod(axis=1)
     owner = np.repeat(np.arange(len(tri)), count)
-    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)  # rank of the cell within the triangle's box
+    # rank of the cell within the triangle's box
+    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
     nn = n[owner]
     cell = a[owner] + np.stack([k // (nn[:, 1] * nn[:, 2]), (k // nn[:, 2]) % nn[:, 1], k % nn[:, 2]], axis=1)
     shape = cell.max(axis=0) + 1
@@ -118,7 +120,8 @@ def crossing_triangles(v: np.ndarray, tri: np.ndarray) -> np.ndarray:
                 free = ~(shx[:, i] | shx[:, j])  # an edge through the shared vertex only touches
                 hit |= free & _segment_hits(x[:, i], x[:, j], y[:, 0], y[:, 1], y[:, 2], tol)
         na = np.cross(ra[:, 1] - ra[:, 0], ra[:, 2] - ra[:, 0])
-        planar = np.stack([np.abs(_orient(ra[:, 0], ra[:, 1], ra[:, 2], rb[:, i])) for i in range(3)], axis=1).max(axis=1)
+        planar = np.stack([np.abs(_orient(ra[:, 0], ra[:, 1], ra[:, 2], rb[:, i])) for i in range(3)],
+                          axis=1).max(axis=1)
         coplanar = planar <= 1e-9 * np.linalg.norm(na, axis=1) * scale
         if coplanar.any():
             hit[coplanar] |= _coplanar_overlap(ra[coplanar], rb[coplanar], sha[coplanar], shb[coplanar], tol)

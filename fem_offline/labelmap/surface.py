@@ -39,7 +39,8 @@ class Surface:
 
 
 def _quads(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Corner grid ids (q, 4) of every voxel face between two different labels (one of them tissue) and the pair (q, 2)."""
+    """Corner grid ids (q, 4) of every voxel face between two different labels (one of them tissue)
+    and the pair (q, 2)."""
     corner_shape = np.array(labels.shape) + 1
     quads, pairs = [], []
     for a in range(3):
@@ -170,7 +171,8 @@ def _decimate_vtk(points: np.ndarray, triangles: np.ndarray, error_mm: float) ->
 
 
 def decimate(surface: Surface, patch: np.ndarray, error_mm: dict[int, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Triangles (k, 3) after decimating each patch to within error_mm[patch] of the smoothed surface, and their patch (k,)."""
+    """Triangles (k, 3) after decimating each patch to within error_mm[patch] of the smoothed surface,
+    and their patch (k,)."""
     out, owner = [], []
     for p in np.unique(patch):
         tri = surface.triangles[patch == p]
@@ -230,7 +232,8 @@ def interface_surface(index: np.ndarray, spacing_mm, *, fine_label: int | None =
         near = np.zeros(len(patch), dtype=bool)
         for lo, hi in zip(box.min(axis=1) - voxel, box.max(axis=1) + voxel):
             near |= np.all((centroid >= lo) & (centroid <= hi), axis=1)
-        log.info("decimated interfaces cross in %d triangles: keeping %d smoothed ones there", crossing.sum(), near.sum())
+        log.info("decimated interfaces cross in %d triangles: keeping %d smoothed ones there", crossing.sum(),
+                 near.sum())
         patch = np.where(near & (patch < kept), patch + kept, patch)
     if crossing.any():
         raise ValueError(f"label_map: the interface surface still crosses itself in {crossing.sum()} triangles "
@@ -255,7 +258,8 @@ def delaunay_flips(v: np.ndarray, tri: np.ndarray, patch: np.ndarray, *, passes:
     decimation leaves fans of thin triangles, and TetGen (-Y) builds its tets on them as they are.
 
     Only an edge with exactly two triangles, both of one patch, bent by under FLIP_MAX_BEND_DEG,
-    whose quad is convex and whose other diagonal is not an edge yet, is flipped; patch borders never move. Each pass flips an independent set.
+    whose quad is convex and whose other diagonal is not an edge yet, is flipped; patch borders never move. Each pass
+    flips an independent set.
     """
     tri = tri.copy()
     for _ in range(passes):
@@ -278,7 +282,8 @@ def delaunay_flips(v: np.ndarray, tri: np.ndarray, patch: np.ndarray, *, passes:
         n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
         bend_ok = np.einsum("ij,ij->i", n1, n2) > np.cos(np.radians(FLIP_MAX_BEND_DEG))
         n = n1 + n2
-        convex = (np.einsum("ij,ij->i", np.cross(pd - pc, pa - pc), n) * np.einsum("ij,ij->i", np.cross(pd - pc, pb - pc), n)) < 0
+        convex = (np.einsum("ij,ij->i", np.cross(pd - pc, pa - pc), n)
+                  * np.einsum("ij,ij->i", np.cross(pd - pc, pb - pc), n)) < 0
         excess = _angle_at(pc, pa, pb) + _angle_at(pd, pa, pb) - np.pi
         new_edge = np.minimum(c, d) * len(v) + np.maximum(c, d)
         fresh = ~np.isin(new_edge, key)  # an edge c-d already there (another patch's) would be doubled
@@ -291,7 +296,8 @@ def delaunay_flips(v: np.ndarray, tri: np.ndarray, patch: np.ndarray, *, passes:
         np.maximum.at(best, t2[want], excess[want])
         pick = want & (excess == best[t1]) & (excess == best[t2])
         taken = np.concatenate([t1[pick], t2[pick]])
-        pick[pick] = np.bincount(taken, minlength=len(tri))[t1[pick]] + np.bincount(taken, minlength=len(tri))[t2[pick]] == 2
+        counts = np.bincount(taken, minlength=len(tri))
+        pick[pick] = counts[t1[pick]] + counts[t2[pick]] == 2
         if not pick.any():
             break
         tri[t1[pick]] = np.stack([c[pick], d[pick], ab[pick, 1]], axis=1)

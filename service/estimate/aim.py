@@ -52,7 +52,8 @@ class Plan:
         return self.best.miss_mm <= REACH_MM
 
 
-def ray_miss(guide: Guide, displacement_mm: np.ndarray, angle_deg: np.ndarray, lesion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ray_miss(guide: Guide, displacement_mm: np.ndarray, angle_deg: np.ndarray,
+             lesion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(miss mm, depth s mm) of each pose's needle ray from the lesion positions (b, 3)."""
     b = np.deg2rad(np.asarray(angle_deg, dtype=np.float64))[:, None]
     a = guide.axis * np.cos(b) + np.cross(guide.tilt_normal, guide.axis) * np.sin(b)  # (b, 3) a(beta), contracts.guide

@@ -52,7 +52,8 @@ class StateSpace:
     @classmethod
     def of(cls, predictor: Predictor) -> StateSpace:
         m = predictor.manifest
-        lo, hi = [m.envelope.displacement_mm[0], m.envelope.angle_deg[0]], [m.envelope.displacement_mm[1], m.envelope.angle_deg[1]]
+        lo = [m.envelope.displacement_mm[0], m.envelope.angle_deg[0]]
+        hi = [m.envelope.displacement_mm[1], m.envelope.angle_deg[1]]
         names, steps = ["displacement_mm", "angle_deg"], [DIFF_STEP[0], DIFF_STEP[1]]
         for inp in m.materials.inputs if m.materials is not None else []:
             names.append(f"ln_E_{inp.tissue}")
@@ -133,7 +134,8 @@ def positions(predictor: Predictor, space: StateSpace, points: PointSet, states:
     return points.reference + np.einsum("kn,bnc->bkc", points.weights, u.astype(np.float64))
 
 
-def with_jacobian(predictor: Predictor, space: StateSpace, points: PointSet, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def with_jacobian(predictor: Predictor, space: StateSpace, points: PointSet,
+                  x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions (k, 3) at x and their Jacobian (k, 3, n) by central differences, in one decode."""
     n = len(x)
     shifts = np.diag(space.steps)
@@ -285,7 +287,8 @@ def _laplace(space, problem, x, pos, jac, r, j, iterations, converged) -> Estima
     limit = stats.chi2.isf(ALPHA / max(k, 1), 3)
     outliers = tuple(int(i) for i in np.flatnonzero(normalised > limit)) if dof > 0 else ()
     span = space.upper - space.lower
-    at_bound = tuple(int(i) for i in np.flatnonzero((x - space.lower <= 1e-6 * span) | (space.upper - x <= 1e-6 * span)))
+    at_bound = tuple(int(i) for i in np.flatnonzero((x - space.lower <= 1e-6 * span)
+                                                    | (space.upper - x <= 1e-6 * span)))
     return Estimate(x, cov, pos[k:], target_cov, pos[:k], normalised, chi2, dof, p_value, outliers, iterations,
                     converged, at_bound)
 

@@ -1,4 +1,5 @@
-"""Request and reply schemas of POST /estimate and POST /plan; ranges, marker count and tissues from the loaded model."""
+"""Request and reply schemas of POST /estimate and POST /plan;
+ranges, marker count and tissues from the loaded model."""
 
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ def _reference_point(info: ModelInfo):
     return tuple[tuple(_number(f"{axis}, mm (reference state)", lo[i], hi[i]) for i, axis in enumerate("xyz"))]
 
 
-Observed = tuple[_number("x, mm", -POSITION_LIMIT_MM, POSITION_LIMIT_MM), _number("y, mm", -POSITION_LIMIT_MM, POSITION_LIMIT_MM),
+Observed = tuple[_number("x, mm", -POSITION_LIMIT_MM, POSITION_LIMIT_MM),
+                 _number("y, mm", -POSITION_LIMIT_MM, POSITION_LIMIT_MM),
                  _number("z, mm", -POSITION_LIMIT_MM, POSITION_LIMIT_MM)]
 NoiseStd = _number("1-sigma of each coordinate, mm", *STD_RANGE_MM)
 
@@ -61,7 +63,8 @@ def estimate_request_model(info: ModelInfo, max_points: int, n_markers: int) -> 
         std_mm=(NoiseStd, ...))
     tracked = create_model(
         "PointObservation", __config__=ConfigDict(extra="forbid"),
-        reference_mm=(point, Field(description="the tracked point's reference (undeformed) position, mm, inside the mesh")),
+        reference_mm=(point,
+                      Field(description="the tracked point's reference (undeformed) position, mm, inside the mesh")),
         position_mm=(Observed, Field(description="its observed (deformed) position, mm")),
         std_mm=(NoiseStd, ...))
     fields = {}
@@ -75,8 +78,8 @@ def estimate_request_model(info: ModelInfo, max_points: int, n_markers: int) -> 
         fields["materials"] = (Optional[materials_request_model(info.materials)], Field(
             None, description="the stiffness prior per tissue, as in /predict (a tissue left out: nominal E with the "
                               "scene's std)"))
-        fields["stiffness_prior"] = (bool, Field(True, strict=True, description="false: the stiffnesses from the tracked points "
-                                                                   "alone, inside their declared ranges"))
+        fields["stiffness_prior"] = (bool, Field(True, strict=True, description=(
+            "false: the stiffnesses from the tracked points alone, inside their declared ranges")))
     fields["targets"] = (Annotated[list[point], Field(min_length=1, max_length=max_points)], Field(
         None, description="lesions: reference positions, mm, inside the mesh, whose displaced position to predict"))
     required = [{"required": ["markers"]}, {"required": ["points"]}] if n_markers else [{"required": ["points"]}]
@@ -88,7 +91,8 @@ def plan_request_model(info: ModelInfo) -> type[BaseModel]:
     """POST /plan's body: a lesion, optionally the push the clinician wants and (a material model) the stiffnesses."""
     (d_lo, d_hi) = info.displacement_mm
     fields = {
-        "lesion_mm": (_reference_point(info), Field(description="the lesion's reference position, mm, inside the mesh")),
+        "lesion_mm": (_reference_point(info),
+                      Field(description="the lesion's reference position, mm, inside the mesh")),
         "displacement_mm": (_number(f"the push the clinician wants, {d_lo}..{d_hi} mm (default: the best)", d_lo, d_hi),
                             Field(None)),
     }

@@ -52,7 +52,8 @@ class RequestModels:
     @classmethod
     def of(cls, info: ModelInfo) -> RequestModels:
         n_markers = int(info.summary["regions"].get("markers", 0))
-        return cls(estimate_request_model(info, info.summary["limits"]["max_points"], n_markers), plan_request_model(info))
+        return cls(estimate_request_model(info, info.summary["limits"]["max_points"], n_markers),
+                   plan_request_model(info))
 
 
 def tracked_body(message, *, markers: list[str], references: dict[str, np.ndarray]) -> tuple[dict, list[str]]:
@@ -108,7 +109,8 @@ def estimate_messages(closing: Closing, reply: dict, *, names: list[str], n_mark
     if targets:
         sigma = [float(np.linalg.norm(t["std_mm"])) for t in targets]
         out.append(pyigtl.PointMessage(
-            positions=np.array([t["position_mm"] for t in targets]), names=lesions, rgba_colors=[LESION_RGBA] * len(targets),
+            positions=np.array([t["position_mm"] for t in targets]), names=lesions,
+            rgba_colors=[LESION_RGBA] * len(targets),
             groups="lesions", diameters=[DIAMETER_PER_STD * s for s in sigma], device_name=ESTIMATED_LESIONS_NAME,
             timestamp=timestamp))
     route_names = [f"markers.{i}" for i in range(n_markers)] + [f"points.{j}" for j in range(len(names) - n_markers)]

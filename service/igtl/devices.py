@@ -53,8 +53,8 @@ DEVICES = (
     Device("in", "POINT", REFERENCES_NAME, "tracked points that are not markers: each name's reference position, mm; "
            "held for every peer"),
     Device("in", "POINT", TRACKED_NAME, f"tracked positions, mm: {MARKER_PREFIX}1.. for the model's markers, a "
-           f"{REFERENCES_NAME} name for the others; each diameter {DIAMETER_PER_STD:g} |std| (the 2-sigma sphere; for a "
-           f"per-axis std s, {DIAMETER_PER_STD:g} sqrt(3) s); "
+           f"{REFERENCES_NAME} name for the others; each diameter {DIAMETER_PER_STD:g} |std| (the 2-sigma sphere; for "
+           f"a per-axis std s, {DIAMETER_PER_STD:g} sqrt(3) s); "
            f"answered by {ESTIMATED_GUIDE_NAME}, {ESTIMATED_LESIONS_NAME}, {ESTIMATE_REPORT_NAME}"),
     Device("in", "POINT", PLAN_LESION_NAME, "one lesion, reference mm, to aim at; answered by "
            f"{PLANNED_GUIDE_NAME} (when reachable), {PLANNED_MISS_NAME}, {PLAN_REPORT_NAME}"),
@@ -73,7 +73,8 @@ DEVICES = (
            "miss"),
     Device("out", "STRING", PLAN_REPORT_NAME, "JSON: reachable, the message, the pose, the miss and its std, what "
            "naive aiming misses by"),
-    Device("out", "STRING", STATUS_NAME, "why a message was refused, or that lesions, references or materials were set"),
+    Device("out", "STRING", STATUS_NAME,
+           "why a message was refused, or that lesions, references or materials were set"),
 )
 
 

@@ -177,7 +177,8 @@ class Responder:
         except Unusable as exc:
             return [status(f"refused {TRACKED_NAME}: {exc}")]
         n_markers = len(body.get("markers", ()))
-        body.update(self._materials_body(), **({"targets": [list(p) for p in table.lesions.values()]} if lesions else {}))
+        targets = {"targets": [list(p) for p in table.lesions.values()]} if lesions else {}
+        body.update(self._materials_body(), **targets)
         try:
             reply, peer.state = run_estimate(closing, models.estimate.model_validate(body), peer.state)
         except ValidationError as exc:

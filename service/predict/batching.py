@@ -142,7 +142,8 @@ class Batcher(Generic[T, R]):
             batch.append(self.queue.get_nowait())
 
     async def _wait_for_more(self, batch: list[_Waiting[T]]) -> None:
-        """Wait for the batch to reach the next size worth having, at most the adaptive delay from now (a lane is free)."""
+        """Wait for the batch to reach the next size worth having,
+        at most the adaptive delay from now (a lane is free)."""
         target = next(s for s in self.sizes if s >= len(batch))
         deadline = time.perf_counter() + min(self.max_delay_s, DELAY_FRACTION * self._run_s)
         while len(batch) < target and (left := deadline - time.perf_counter()) > 0:

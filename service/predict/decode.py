@@ -66,7 +66,8 @@ def plan(predictor: Predictor, request: PredictRequestBase) -> Query:
     return Query(guide, ALL_NODES, None, materials=materials)
 
 
-def decode(predictor: Predictor, queries: list[Query], nodes: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+def decode(predictor: Predictor, queries: list[Query],
+           nodes: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
     """(displacement, std or None), each (batch, k, 3) float32, of queries decoding the same `nodes` in one call."""
     guides = np.array([q.guide for q in queries])
     if queries[0].materials is None:

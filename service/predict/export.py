@@ -1,4 +1,5 @@
-"""The deformed mesh as files other tools open: VTU (the volume) for ParaView and 3D Slicer, PLY and GLB (tissue surfaces).
+"""The deformed mesh as files other tools open: VTU (the volume) for ParaView and 3D Slicer,
+PLY and GLB (tissue surfaces).
 
 Pure functions of a model folder and a displacement field (n_nodes, 3) in mm. Coordinates stay in
 the mesh frame and in millimetres, GLB included (glTF assumes metres: scale by 0.001 on import
@@ -134,4 +135,5 @@ def export_response(predictor, *, displacement_mm: float, angle_deg: float, fmt:
 
 # The reply's other content types in /predict's OpenAPI entry (schemathesis checks replies against it), in
 # MEDIA_TYPES' order: a set's order changes with the process's hash seed, and the document with it.
-EXPORT_CONTENT = {media: {"schema": {"type": "string", "format": "binary"}} for media in dict.fromkeys(MEDIA_TYPES.values())}
+EXPORT_CONTENT = {media: {"schema": {"type": "string", "format": "binary"}}
+                  for media in dict.fromkeys(MEDIA_TYPES.values())}

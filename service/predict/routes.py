@@ -55,8 +55,9 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
 
         With `direct` (the default), a body that validates and a request with no query string go straight to
         `handle`: FastAPI's dependency solving costs more than a markers decode (why: CHANGELOG, "A valid
-        `/predict` body with no query string skips FastAPI's dependency solving"). Anything else (a body that fails validation, ?format=, no model loaded) takes
-        FastAPI's own path, which gives every documented error reply; the body is read and parsed once either way.
+        `/predict` body with no query string skips FastAPI's dependency solving"). Anything else (a body that fails
+        validation, ?format=, no model loaded) takes FastAPI's own path, which gives every documented error reply; the
+        body is read and parsed once either way.
         """
 
         direct = True
@@ -97,7 +98,8 @@ def predict_router(PredictRequest: type[PredictRequestBase]) -> APIRouter:
     return predict_routes
 
 
-async def handle(body: PredictRequestBase, request: Request, pipeline: Pipeline, export: ExportFormat | None) -> Response:
+async def handle(body: PredictRequestBase, request: Request, pipeline: Pipeline,
+                 export: ExportFormat | None) -> Response:
     """POST /predict for a validated body: the deformed positions (pipeline.py), or with `export` the mesh as a file."""
     target = body.region.value if body.region is not None else ("points" if body.points is not None else "all")
     state = request.scope.setdefault("state", {})  # for the metrics middleware, which counts the reply

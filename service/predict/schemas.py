@@ -72,8 +72,8 @@ class PredictReply(BaseModel):
         None, description="displacement vectors in mm; given for markers and for points")
     node_ids: Optional[list[int]] = Field(None, description="mesh node ids of the positions, for a region")
     std_mm: Optional[list[list[float]]] = Field(
-        None, description="a material model's std of x, y and z per position, mm, from the materials' std (first order; "
-                          "at points an upper bound: the nodes' std interpolated with |shape functions|)")
+        None, description="a material model's std of x, y and z per position, mm, from the materials' std (first "
+                          "order; at points an upper bound: the nodes' std interpolated with |shape functions|)")
     error_budget: Optional[dict] = Field(
         None, description="a material model's error terms in mm (surrogate, FE discretisation, material first order, "
                           "the largest std, total) and what each is measured against")
@@ -93,5 +93,6 @@ def field_hints(info: ModelInfo, max_points: int) -> dict[str, str]:
              "(GET /model: materials.box), optional std_percent or std up to the value; at the nominal scale: "
              if info.materials.by_ratios else
              "per tissue youngs_kpa or shear_wave_speed_m_s inside its range, optional std_percent or std: ")
-            + "; ".join(f"{m.tissue} {m.youngs_kpa_range[0]:g}..{m.youngs_kpa_range[1]:g} kPa" for m in info.materials.inputs)),
+            + "; ".join(f"{m.tissue} {m.youngs_kpa_range[0]:g}..{m.youngs_kpa_range[1]:g} kPa"
+                        for m in info.materials.inputs)),
     }

@@ -38,7 +38,8 @@ def _rows():
                 "throughput_rps": rps, "p50_ms": p99 / 2, "p99_ms": p99, "mean_batch": 4.0}
 
     return [row("a", 220.0, 42.0, default=True), row("b", 230.0, 70.0), row("c", 180.0, 55.0),
-            row("a", 500.0, 3.0, default=True, scenario="full binary 1"), row("b", 400.0, 3.3, scenario="full binary 1")]
+            row("a", 500.0, 3.0, default=True, scenario="full binary 1"),
+            row("b", 400.0, 3.3, scenario="full binary 1")]
 
 
 def test_the_defaults_are_ranked_against_the_best_of_each_figure():

@@ -1,4 +1,5 @@
-"""The model folder contract: the committed default model reads back; a stale or altered folder is refused, saying why."""
+"""The model folder contract: the committed default model reads back; a stale or altered folder is refused,
+saying why."""
 
 import json
 import shutil

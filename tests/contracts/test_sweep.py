@@ -10,7 +10,8 @@ from contracts.mesh import TetMesh, write_mesh
 from contracts.scene import PHANTOM_TISSUES, Scene, Tissue
 
 # a scene of the phantom's tissues, every other field at its default
-SCENE = Scene(name="s", tissues={t: Tissue(youngs_kpa=10.0, bone=t in ("pubic_bone", "spine")) for t in PHANTOM_TISSUES})
+SCENE = Scene(name="s", tissues={t: Tissue(youngs_kpa=10.0, bone=t in ("pubic_bone", "spine"))
+                                 for t in PHANTOM_TISSUES})
 
 
 def _write_sweep(out, n_nodes=5, done=None):

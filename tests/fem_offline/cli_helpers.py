@@ -25,7 +25,8 @@ std_percent = 20.0
 
 
 def cli(*args, **kw):
-    return subprocess.run([sys.executable, "-m", "fem_offline", *map(str, args)], capture_output=True, text=True, cwd=ROOT, **kw)
+    return subprocess.run([sys.executable, "-m", "fem_offline", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, **kw)
 
 
 def scene_file(tmp_path, name, extra):

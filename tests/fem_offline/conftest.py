@@ -34,5 +34,6 @@ def corner_path(tiny_problem):
 
 @pytest.fixture(scope="session")
 def tiny_linear_problem(tiny_scene, tiny_mesh):
-    scene = tiny_scene.model_copy(update={"effects": tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})})
+    effects = tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})
+    scene = tiny_scene.model_copy(update={"effects": effects})
     return build_problem(scene, tiny_mesh)

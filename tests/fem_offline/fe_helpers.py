@@ -69,7 +69,8 @@ def _octant_shell(a, b, size):
         shell, _ = occ.cut([(3, occ.addSphere(0, 0, 0, b))], [(3, occ.addSphere(0, 0, 0, a))])
         occ.intersect(shell, [(3, occ.addBox(0, 0, 0, 2 * b, 2 * b, 2 * b))])
         occ.synchronize()
-        gmsh.model.mesh.setSizeCallback(lambda dim, tag, x, y, z, lc: size * (0.25 + 0.75 * (np.sqrt(x * x + y * y + z * z) - a) / (b - a)))
+        gmsh.model.mesh.setSizeCallback(
+            lambda dim, tag, x, y, z, lc: size * (0.25 + 0.75 * (np.sqrt(x * x + y * y + z * z) - a) / (b - a)))
         gmsh.model.mesh.generate(3)
         _, coords, _ = gmsh.model.mesh.getNodes()
         _, _, enodes = gmsh.model.mesh.getElements(3)

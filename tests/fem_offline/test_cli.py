@@ -55,10 +55,12 @@ def test_solve_reuses_a_saved_mesh_and_rejects_a_foreign_one(tmp_path, tiny_mesh
 
     path = save(tiny_mesh, tmp_path / "mesh.vtu")
     out = tmp_path / "case.npz"
-    run = cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", path, "--displacement-mm", 0.5, "--angle-deg", 0, "--out", out)
+    run = cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", path, "--displacement-mm", 0.5, "--angle-deg", 0,
+              "--out", out)
     assert run.returncode == 0, run.stderr
     np.testing.assert_array_equal(np.load(out)["reference_positions"], tiny_mesh.nodes)
     renamed = TetMesh(tiny_mesh.nodes, tiny_mesh.tets, tiny_mesh.tissue, ("liver",) + tiny_mesh.tissue_names[1:])
     foreign = save(renamed, tmp_path / "foreign.vtu")
-    run = cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", foreign, "--displacement-mm", 0.5, "--angle-deg", 0, "--out", out)
+    run = cli("solve", "--scene", SCENES / "tiny.toml", "--mesh", foreign, "--displacement-mm", 0.5, "--angle-deg", 0,
+              "--out", out)
     assert run.returncode == 2 and "liver" in run.stderr and "Traceback" not in run.stderr

@@ -19,7 +19,8 @@ from fem_offline.scene import load_scene
 
 from .cli_helpers import LINEAR, MATERIALS, ROOT, cli, scene_file
 
-ONE_PUSH = "[sweep]\ndisplacement_step_mm = 2.0\ndisplacement_max_mm = 2.0\nangle_min_deg = -10.0\nangle_max_deg = 10.0\n"
+ONE_PUSH = ("[sweep]\ndisplacement_step_mm = 2.0\ndisplacement_max_mm = 2.0\nangle_min_deg = -10.0\n"
+            "angle_max_deg = 10.0\n")
 
 
 @pytest.fixture

@@ -1,4 +1,5 @@
-"""The package's layout: the scene imports nothing from the FE, no module-level import cycle, no module over 400 lines."""
+"""The package's layout: the scene imports nothing from the FE, no module-level import cycle,
+no module over 400 lines."""
 
 import ast
 from pathlib import Path

@@ -71,9 +71,12 @@ def test_sweep_refuses_a_folder_of_another_scene(tmp_path):
 
 def test_killed_sweep_resumes_to_the_same_answer(tmp_path, tiny_problem):
     """Kill -9 right after the first snapshot: only whole files on disk; the rerun finishes the path."""
-    scene = scene_file(tmp_path, "one", MINI.replace("angle_min_deg = -10.0", "angle_min_deg = 10.0").replace("displacement_max_mm = 2.0", "displacement_max_mm = 3.0"))
+    text = (MINI.replace("angle_min_deg = -10.0", "angle_min_deg = 10.0")
+            .replace("displacement_max_mm = 2.0", "displacement_max_mm = 3.0"))
+    scene = scene_file(tmp_path, "one", text)
     out = tmp_path / "sweep"
-    killed = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_SNAPSHOT, str(scene), str(out)], cwd=ROOT, capture_output=True, text=True)
+    killed = subprocess.run([sys.executable, "-c", KILL_AFTER_FIRST_SNAPSHOT, str(scene), str(out)], cwd=ROOT,
+                            capture_output=True, text=True)
     assert killed.returncode == -signal.SIGKILL, killed.stderr
     assert [p.name for p in (out / "snapshots").iterdir()] == ["a000_d000.npz"]
     np.load(out / "snapshots" / "a000_d000.npz")["displacement"]  # whole, readable

@@ -17,8 +17,8 @@ SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offlin
 
 # The tiny phantom, and the three anatomical variants of issue #14 at the tiny scene's sizes.
 BUILDS = ("tiny", "anatomy/small", "anatomy/medium", "anatomy/large")
-# CGAL sizes its tets by the scene's mesh sizes, TetGen by the voxels (fem_offline/labelmap/meshers.py): the 1 mm map gives
-# TetGen 86,509 tets and the build 8.5 min on a loaded 2-core machine; at 2 mm it gives 18,577 tets,
+# CGAL sizes its tets by the scene's mesh sizes, TetGen by the voxels (fem_offline/labelmap/meshers.py): the 1 mm map
+# gives TetGen 86,509 tets and the build 8.5 min on a loaded 2-core machine; at 2 mm it gives 18,577 tets,
 # about CGAL's 19,642 at 1 mm. The first mesher installed builds.
 VOXEL_MM = {"cgal": 1.0, "tetgen": 2.0}
 
@@ -35,13 +35,15 @@ def _tiny_sized(name: str):
     build is tested here; tests/training/test_materials.py tests the materials)."""
     tiny = load_scene(SCENES / "tiny.toml")
     return load_scene(SCENES / f"{name}.toml", mesh=tiny.mesh.model_dump(), sweep={**tiny.sweep.model_dump(), **SWEEP},
-                      solver=tiny.solver.model_dump(), effects={"geometric_nonlinearity": False, "guide_contact": False}, materials=None)
+                      solver=tiny.solver.model_dump(),
+                      effects={"geometric_nonlinearity": False, "guide_contact": False}, materials=None)
 
 
 @pytest.fixture(scope="module", params=BUILDS)
 def built(request, tmp_path_factory):
     """The scene voxelised (1 mm, or 2 mm for TetGen), a linear 3 x 4 sweep, 2 off-grid cases: the whole build."""
-    mesher = next((m for m, package in (("cgal", "pygalmesh"), ("tetgen", "tetgen")) if importlib.util.find_spec(package)), None)
+    mesher = next((m for m, package in (("cgal", "pygalmesh"), ("tetgen", "tetgen"))
+                   if importlib.util.find_spec(package)), None)
     if mesher is None:
         pytest.skip("label-map meshing needs pygalmesh (`make labelmesh`) or tetgen (offline extra)")
     import tomli_w
@@ -93,7 +95,8 @@ def test_service_serves_it_and_reports_the_source(built):
         info = client.get("/model").json()
         assert info["source"]["sha256"] == model.source.sha256 == sha256(folder / "labels.nrrd")
         assert info["source"]["labels"] == LABELS and info["source"]["spacing_mm"] == [voxel] * 3
-        assert info["source"]["shape"] == [int(n / voxel) for n in (100, 80, 90)] and info["source"]["file"] == "labels.nrrd"
+        assert (info["source"]["shape"] == [int(n / voxel) for n in (100, 80, 90)]
+                and info["source"]["file"] == "labels.nrrd")
         r = client.post("/predict", json={"displacement_mm": 3.0, "angle_deg": 0.0, "region": "markers"})
         assert r.status_code == 200, r.text
         assert np.linalg.norm(np.asarray(r.json()["displacements"]), axis=1).max() > 0.05

@@ -11,7 +11,8 @@ SCENES = __import__("pathlib").Path(__file__).resolve().parents[2] / "fem_offlin
     (["--scene", "missing.toml"], "missing.toml: no such scene file"),
     (["--scene", str(SCENES / "tiny.toml"), "--offgrid", "0"], "--offgrid: must be at least 1"),
     (["--scene", str(SCENES / "tiny.toml"), "--width", "0"], "--width: must be at least 1"),
-    (["--scene", str(SCENES / "tiny.toml"), "--fe-estimate", "nowhere.json"], "--fe-estimate: no such file nowhere.json"),
+    (["--scene", str(SCENES / "tiny.toml"), "--fe-estimate", "nowhere.json"],
+     "--fe-estimate: no such file nowhere.json"),
 ])
 def test_bad_input_is_one_line_and_exit_2(argv, message, tmp_path, capsys):
     assert main(["build", "--out", str(tmp_path / "m"), "--work", str(tmp_path / "w"), *argv]) == 2

@@ -72,7 +72,8 @@ def test_application_json_with_or_without_utf8_charset_is_accepted(client, conte
 
 
 def test_a_body_that_is_not_utf8_gets_400_naming_the_body(client):
-    r = _predict(client, content=b'{"displacement_mm": 5, "angle_deg": \xff}', headers={"content-type": "application/json"})
+    r = _predict(client, content=b'{"displacement_mm": 5, "angle_deg": \xff}',
+                 headers={"content-type": "application/json"})
     assert r.status_code == 400 and r.json()["detail"] == [
         {"field": "body", "message": "body: not UTF-8 text, as JSON must be", "type": "not_utf8"}]
 
@@ -114,7 +115,8 @@ def test_cors_allows_only_the_listed_origins(cors_client):
     assert _preflight(cors_client, ALLOWED, method="DELETE").status_code == 400
     r = cors_client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0, "region": "markers"},
                          headers={"origin": ALLOWED, "accept": "application/octet-stream"})
-    assert r.headers["access-control-allow-origin"] == ALLOWED and "X-Count" in r.headers["access-control-expose-headers"]
+    assert (r.headers["access-control-allow-origin"] == ALLOWED
+            and "X-Count" in r.headers["access-control-expose-headers"])
     other = cors_client.get("/model", headers={"origin": "https://evil.example.org"})
     assert other.status_code == 200 and "access-control-allow-origin" not in other.headers
 

@@ -63,7 +63,8 @@ def test_youngs_modulus_and_shear_wave_speed_give_the_same_answer(mat_client, gr
     markers = folder.regions["markers"]
     v = math.sqrt(80.0e3 / (2 * 1.495 * 1008.0))
     by_e = _post(mat_client, region="markers", materials={"prostate": {"youngs_kpa": 80.0, "std_percent": 10.0}}).json()
-    by_v = _post(mat_client, region="markers", materials={"prostate": {"shear_wave_speed_m_s": v, "std_percent": 5.0}}).json()
+    by_v = _post(mat_client, region="markers",
+                 materials={"prostate": {"shear_wave_speed_m_s": v, "std_percent": 5.0}}).json()
     u, std = run([math.log(80.0 / 65.89), 0, 0, 0], [0.1, 0.2, 0.2, 0.2], markers)
     np.testing.assert_allclose(by_e["displacements"], u[0], atol=1e-6)
     np.testing.assert_allclose(by_v["displacements"], u[0], atol=1e-5)
@@ -139,7 +140,8 @@ def test_the_model_states_its_box_as_ratios_and_in_kpa(mat_client, abs_client):
     for t, m in inputs.items():
         lo, hi = m["youngs_kpa_range"]
         assert box["youngs_kpa_at_nominal_scale"][t] == [lo, hi]
-        np.testing.assert_allclose(box["ratio_to_nominal"][t], [lo / m["nominal_youngs_kpa"], hi / m["nominal_youngs_kpa"]])
+        nominal = m["nominal_youngs_kpa"]
+        np.testing.assert_allclose(box["ratio_to_nominal"][t], [lo / nominal, hi / nominal])
         alone = box["youngs_kpa_alone"][t]
         assert alone[0] < lo and alone[1] > hi  # the others' ranges let one tissue go further
     assert "youngs_kpa_alone" not in _ratio_box(abs_client)
@@ -158,7 +160,8 @@ def test_every_stiffness_times_k_gets_the_answer_of_the_stiffness_it_was_scaled_
 
     def body(scale: float) -> dict:
         return {"prostate": {"youngs_kpa": youngs["prostate"] * scale, "std_percent": 10.0},
-                "rectal_wall": {"youngs_kpa": youngs["rectal_wall"] * scale, "std": 0.3 * youngs["rectal_wall"] * scale},
+                "rectal_wall": {"youngs_kpa": youngs["rectal_wall"] * scale,
+                                "std": 0.3 * youngs["rectal_wall"] * scale},
                 "adipose": {"youngs_kpa": youngs["adipose"] * scale},
                 "bladder": {"shear_wave_speed_m_s": v * math.sqrt(scale), "std_percent": 5.0}}
 
@@ -324,7 +327,8 @@ def test_openigtlink_takes_the_materials_and_sends_the_2_sigma_sphere_of_predict
     responder, predictor = Responder(folder), Predictor(folder)
     pose = pyigtl.TransformMessage(Guide.of(folder.manifest).pose(4.0, 3.0), device_name="NeedleGuide")
     materials = {"prostate": {"youngs_kpa": 80.0, "std_percent": 10.0}}
-    said = responder.answer(predictor, pyigtl.StringMessage(__import__("json").dumps(materials), device_name=MATERIALS_NAME))
+    message = pyigtl.StringMessage(__import__("json").dumps(materials), device_name=MATERIALS_NAME)
+    said = responder.answer(predictor, message)
     assert said[0].string.startswith("materials set")
     points = responder.answer(predictor, pose)[0]
     reply = _post(mat_client, region="markers", materials=materials).json()
@@ -335,15 +339,18 @@ def test_openigtlink_takes_the_materials_and_sends_the_2_sigma_sphere_of_predict
     halo = mat_client.get("/model").json()["materials"]["std"]["halo_sigmas"]
     assert halo == 2 and mat_client.get("/viewer/scene.json").json()["halo_sigmas"] == halo
     assert reply["error_budget"]["total_mm"] == pytest.approx(
-        sum(v for k, v in reply["error_budget"].items() if k.endswith("_mm") and k not in ("total_mm", "material_std_mm_max")
+        sum(v for k, v in reply["error_budget"].items()
+            if k.endswith("_mm") and k not in ("total_mm", "material_std_mm_max")
             and v is not None) + halo * sigma.max(), rel=1e-6)
-    refused = responder.answer(predictor, pyigtl.StringMessage('{"prostate": {"youngs_kpa": 200}}', device_name=MATERIALS_NAME))
+    too_stiff = pyigtl.StringMessage('{"prostate": {"youngs_kpa": 200}}', device_name=MATERIALS_NAME)
+    refused = responder.answer(predictor, too_stiff)
     assert "materials.prostate: " in refused[0].string and "the box's" in refused[0].string
     np.testing.assert_allclose(responder.answer(predictor, pose)[0].positions, points.positions)
 
 
 def test_an_export_with_materials_is_refused_rather_than_answered_at_the_nominal(mat_client):
-    """?format= exports the nominal materials' mesh (service/predict/export.py): materials with it are a 422, not ignored."""
+    """?format= exports the nominal materials' mesh (service/predict/export.py): materials with it are a 422,
+    not ignored."""
     reply = mat_client.post("/predict?format=vtu", json={**GUIDE, "materials": {"prostate": {"youngs_kpa": 70.0}}})
     assert reply.status_code == 422 and reply.json()["detail"][0]["field"] == "materials"
     assert mat_client.post("/predict?format=vtu", json=GUIDE).status_code == 200

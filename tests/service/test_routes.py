@@ -27,7 +27,8 @@ def test_full_mesh_json_has_every_field(client, folder):
 
 def test_binary_reply_is_the_same_positions_as_float32(client):
     j = np.asarray(_predict(client).json()["positions"], dtype=np.float32)
-    r = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0}, headers={"accept": "application/octet-stream"})
+    r = client.post("/predict", json={"displacement_mm": 5.0, "angle_deg": 2.0},
+                    headers={"accept": "application/octet-stream"})
     assert r.status_code == 200 and r.headers["content-type"] == "application/octet-stream"
     assert int(r.headers["x-count"]) == len(j) and "count x 3" in r.headers["x-layout"]
     np.testing.assert_array_equal(np.frombuffer(r.content, dtype="<f4").reshape(-1, 3), j)
@@ -86,7 +87,8 @@ def test_bad_input_gets_422_naming_the_field(client, body, field, words):
     assert any(d["field"] == field and words in d["message"] for d in detail), detail
 
 
-@pytest.mark.parametrize("raw", [b'{"displacement_mm": NaN, "angle_deg": 0}', b'{"displacement_mm": 5, "angle_deg": Infinity}',
+@pytest.mark.parametrize("raw", [b'{"displacement_mm": NaN, "angle_deg": 0}',
+                                 b'{"displacement_mm": 5, "angle_deg": Infinity}',
                                  b'{"displacement_mm": 5, "angle_deg": 0, "points": [[0, 0, NaN]]}'])
 def test_nan_and_inf_are_refused(client, raw):
     r = client.post("/predict", content=raw, headers={"content-type": "application/json"})
@@ -203,8 +205,8 @@ def _route_class(app, path: str) -> type:
     ({"materials": {"prostate": {"youngs_kpa": 70.0, "std_percent": 10.0}}}, "application/json"),
     ({"materials": {"adipose": {"shear_wave_speed_m_s": 2.0}}, "region": "markers"}, "application/octet-stream")])
 def test_a_valid_body_skips_fastapi_dependencies_and_gets_the_same_reply(client, folder, monkeypatch, body, accept):
-    """/predict's direct path (service/predict/routes.py, PredictRoute) gives the same status, headers and bytes as FastAPI's
-    path, and solves no dependency on the way; an invalid body takes FastAPI's path, for its 422."""
+    """/predict's direct path (service/predict/routes.py, PredictRoute) gives the same status, headers and bytes as
+    FastAPI's path, and solves no dependency on the way; an invalid body takes FastAPI's path, for its 422."""
     import fastapi.routing
 
     solved, solve = [], fastapi.routing.solve_dependencies

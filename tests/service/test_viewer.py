@@ -8,7 +8,8 @@ import pytest
 from .helpers import predict_json, prostate_point, served
 
 from service.viewer import STATIC
-from tools.browser import add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider, wait_still
+from tools.browser import (add_target, find_chromium, launch_chromium, open_viewer, serve_in_thread, set_slider,
+                           wait_still)
 
 needs_chromium = pytest.mark.skipif(find_chromium() is None,
                                     reason="no chromium on PATH (make system-deps installs Debian's chromium)")
@@ -67,7 +68,8 @@ def test_region_cover_holds_the_drawn_nodes_and_gather_finds_them(tiny_client, t
 
 
 def test_targets_interpolated_from_a_frame_equal_predict_points(tiny_client, tiny_folder):  # noqa: F811
-    """x = X + sum_i w_i (x_i - X_i) over /viewer/targets' nodes, read from the frame's replies, is /predict `points`."""
+    """x = X + sum_i w_i (x_i - X_i) over /viewer/targets' nodes, read from the frame's replies,
+    is /predict `points`."""
     scene = tiny_client.get("/viewer/scene.json").json()
     rng = np.random.default_rng(3)
     tets = tiny_folder.tets[rng.choice(len(tiny_folder.tets), 5, replace=False)]
@@ -333,8 +335,8 @@ def _lesions(folder) -> list[list[float]]:
 
 
 @needs_chromium
-def test_lesions_in_the_url_are_drawn_before_and_after_with_their_plan_and_the_needle_paths(viewer, browser, tiny_client,
-                                                                                           tiny_folder, tmp_path):
+def test_lesions_in_the_url_are_drawn_before_and_after_with_their_plan_and_the_needle_paths(
+        viewer, browser, tiny_client, tiny_folder, tmp_path):
     """?lesions= adds each lesion and asks /plan: its reference and displaced positions, the sliders' needle path and
     the planned pose are in the scene; "Go to plan" moves the guide there, where the drawn needle path passes the drawn
     lesion at the miss /plan states."""
@@ -372,7 +374,8 @@ def test_lesions_in_the_url_are_drawn_before_and_after_with_their_plan_and_the_n
                                arg=plan["displacement_mm"])
         moved = page.evaluate("__viewer.targets[0].position")
         case = {"displacement_mm": plan["displacement_mm"], "angle_deg": plan["angle_deg"]}
-        np.testing.assert_allclose(moved, predict_json(tiny_client, points=[lesions[0]], **case)["positions"][0], atol=0.01)
+        np.testing.assert_allclose(moved, predict_json(tiny_client, points=[lesions[0]], **case)["positions"][0],
+                                   atol=0.01)
         assert np.linalg.norm(np.subtract(moved, lesions[0])) > 0.1  # before and after differ
         needle = page.evaluate("__viewer.objects()['needle-path'].points")
         assert _ray_distance(needle, moved) == pytest.approx(plan["miss_mm"], abs=0.01) and plan["miss_mm"] < 0.05

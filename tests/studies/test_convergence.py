@@ -23,7 +23,8 @@ def test_richardson_recovers_order_and_limit_of_an_exact_power_law(order):
 
 @pytest.mark.parametrize("order", [1.0, 2.0, 3.0])
 def test_unequal_ratios_recover_order_and_limit(order):
-    """h = r32 r21, r21, 1 with r32 != r21 (a level at sizes x 0.769 after 1.3, 1): Celik's fixed point gives p exactly."""
+    """h = r32 r21, r21, 1 with r32 != r21 (a level at sizes x 0.769 after 1.3, 1):
+    Celik's fixed point gives p exactly."""
     f0, c, r32, r21 = 4.0, -0.3, 1.3, 1 / 0.769
     f3, f2, f1 = (f0 + c * h**order for h in (r32 * r21, r21, 1.0))
     out = richardson(f3, f2, f1, (r32, r21))
@@ -40,7 +41,8 @@ def test_an_order_above_the_schemes_is_capped_in_the_band_not_in_the_estimate():
     f3, f2, f1 = (f0 + 0.5 * h**4 for h in (r**2, r, 1.0))
     out = richardson(f3, f2, f1, r)
     assert out.order == pytest.approx(4.0) and out.extrapolated == pytest.approx(f0)
-    assert out.gci_fine == pytest.approx(SAFETY * abs(f2 - f1) / (r**P_FORMAL - 1)) and out.gci_fine > SAFETY * abs(f1 - f0)
+    assert (out.gci_fine == pytest.approx(SAFETY * abs(f2 - f1) / (r**P_FORMAL - 1))
+            and out.gci_fine > SAFETY * abs(f1 - f0))
 
 
 @pytest.mark.parametrize(("values", "kind"), [((1.0, 1.2, 1.1), "oscillatory"), ((1.0, 1.1, 1.3), "divergent")])
@@ -67,7 +69,8 @@ def test_field_band_is_the_pointwise_distance_to_the_limit():
 def test_scaled_scene_scales_every_size_together(tiny_scene):
     s = scaled_scene(tiny_scene, 1.3).mesh
     m = tiny_scene.mesh
-    assert (s.max_mm, s.prostate_mm, s.guide_mm) == pytest.approx((1.3 * m.max_mm, 1.3 * m.prostate_mm, 1.3 * m.guide_mm))
+    scaled = (1.3 * m.max_mm, 1.3 * m.prostate_mm, 1.3 * m.guide_mm)
+    assert (s.max_mm, s.prostate_mm, s.guide_mm) == pytest.approx(scaled)
 
 
 def test_interrupted_path_resumes_to_the_uninterrupted_answer(tiny_problem, tmp_path):

@@ -20,7 +20,8 @@ def test_corners_then_face_centres_each_once():
     names = [n for n, _ in points]
     assert len(points) == 2**3 + 2 * 3 and len(set(names)) == len(names)
     corners = [f for n, f in points if n.startswith("corner")]
-    assert {tuple(f.values()) for f in corners} == {(a, b, c) for a in (0.5, 2.0) for b in (0.1, 1.0) for c in (1.0, 4.0)}
+    assert {tuple(f.values()) for f in corners} == {(a, b, c) for a in (0.5, 2.0) for b in (0.1, 1.0)
+                                                    for c in (1.0, 4.0)}
     face = dict(points)["face b+"]
     assert face == {"a": 1.0, "b": 1.0, "c": 2.0}  # b at its upper end, the others at their geometric centres
 
@@ -34,5 +35,6 @@ def test_the_table_shows_each_element_side_by_side_and_what_is_not_run():
             {**row, "element": "taylor_hood", "reached_mm": 8.75, "solved": False, "min_det_f": 0.002}]
     text = markdown(rows, {"a": (0.5, 2.0), "b": (0.1, 1.0)}, [0.0, 10.0])
     assert "mean_dilatation**: 1 of the 16 solves run; 1 of 1 reach the full push" in text
-    assert "taylor_hood**: 1 of the 16 solves run; 0 of 1 reach" in text and "8.75 (failed)" in text and "0.002 (adipose)" in text
+    assert ("taylor_hood**: 1 of the 16 solves run; 0 of 1 reach" in text and "8.75 (failed)" in text
+            and "0.002 (adipose)" in text)
     assert "| corner -- | 10 | not run" in text

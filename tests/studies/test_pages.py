@@ -26,7 +26,8 @@ def test_a_result_block_shows_its_provenance_and_its_figures():
     block = pages.result_block("convergence_taylor_hood")
     prov = json.loads((RESULTS / "convergence_taylor_hood.json").read_text())["provenance"]
     assert f"`{prov['command']}`" in block and prov["commit"][:10] in block and prov["date"][:10] in block
-    assert "| 10 mm, 10 deg |" in block and "[convergence_taylor_hood.json](results/convergence_taylor_hood.json)" in block
+    assert ("| 10 mm, 10 deg |" in block
+            and "[convergence_taylor_hood.json](results/convergence_taylor_hood.json)" in block)
 
 
 def test_a_result_older_than_the_code_it_describes_says_so():

@@ -21,11 +21,13 @@ def test_float32_decode_at_paper_scale_matches_float64():
     guide = np.array([[10.0, 10.0], [10.0, -10.0], [0.25, 0.0], [5.0, 3.0]], dtype=np.float32)
     # one linear layer guide -> coefficients, scaled so the decoded field peaks at 15 mm
     w = rng.normal(size=(2, RANK))
-    w *= 15.0 / np.abs(reference_decode([(w, np.zeros(RANK))], Pca(np.zeros(3 * N_NODES), basis, np.ones(1)), guide)).max()
+    w *= 15.0 / np.abs(reference_decode([(w, np.zeros(RANK))], Pca(np.zeros(3 * N_NODES), basis, np.ones(1)),
+                                        guide)).max()
     layers = [(w, np.zeros(RANK))]
     sess = onnx_session(build_graph(layers, pca).SerializeToString())
     ref = reference_decode(layers, pca, guide)
     got = sess.run(None, {"guide": guide})[0]
     err = np.abs(got - ref).max()
-    print(f"float32 vs float64 at {N_NODES} nodes, rank {RANK}: max {err:.2e} mm, field up to {np.abs(ref).max():.1f} mm")
+    print(f"float32 vs float64 at {N_NODES} nodes, rank {RANK}: max {err:.2e} mm, "
+          f"field up to {np.abs(ref).max():.1f} mm")
     assert np.isfinite(got).all() and err < 2e-5  # measured 4.2e-6 mm

@@ -64,7 +64,8 @@ def test_derivative_rows_make_the_fit_right_between_few_points():
         return np.column_stack([np.sin(x[:, 0] + x[:, 2]), x[:, 1] * np.cos(x[:, 2]), np.exp(0.5 * x[:, 2]) * x[:, 0]])
 
     def df(x):  # d f / d x_2, (n, 3)
-        return np.column_stack([np.cos(x[:, 0] + x[:, 2]), -x[:, 1] * np.sin(x[:, 2]), 0.5 * np.exp(0.5 * x[:, 2]) * x[:, 0]])
+        return np.column_stack([np.cos(x[:, 0] + x[:, 2]), -x[:, 1] * np.sin(x[:, 2]),
+                                0.5 * np.exp(0.5 * x[:, 2]) * x[:, 0]])
 
     x, test = rng.uniform(-1, 1, size=(12, 3)), rng.uniform(-1, 1, size=(400, 3))
     errors = {}
@@ -149,5 +150,6 @@ def test_a_served_design_model_answers_by_ratios(design_model):
                               materials={t: {"youngs_kpa": 2.5 * e} for t, e in nominal.items()})
         np.testing.assert_allclose(scaled["positions"], one["positions"], atol=1e-5)
         bad = client.post("/predict", json={"displacement_mm": 3.0, "angle_deg": 5.0, "region": "markers",
-                                            "materials": {"rectal_wall": {"youngs_kpa": 1.0}, "prostate": {"youngs_kpa": 500.0}}})
+                                            "materials": {"rectal_wall": {"youngs_kpa": 1.0},
+                                                          "prostate": {"youngs_kpa": 500.0}}})
         assert bad.status_code == 422 and "prostate" in bad.text and "rectal_wall" in bad.text, bad.text

@@ -17,7 +17,8 @@ def pieces():
     n_nodes = 500
     x = np.stack([rng.uniform(0.25, 10, 120), rng.uniform(-10, 10, 120)], axis=1)
     fields = 0.3 * rng.normal(size=(3, 3 * n_nodes))  # peak |u| about 10 mm, like the phantom
-    u = np.outer(x[:, 0], fields[0]) + np.outer(x[:, 0] * x[:, 1] / 10, fields[1]) + np.outer(x[:, 0] ** 2 / 10, fields[2])
+    u = (np.outer(x[:, 0], fields[0]) + np.outer(x[:, 0] * x[:, 1] / 10, fields[1])
+         + np.outer(x[:, 0] ** 2 / 10, fields[2]))
     f = u / x[:, :1]  # the graph decodes f and multiplies by d
     pca = fit_pca(f, 6)
     net, scaling, _ = train(x, pca.encode(f), width=20, max_iterations=100)
@@ -38,8 +39,10 @@ def test_onnx_torch_numpy_parity(pieces):
     with torch.no_grad():
         net32 = net.float()
         coef = net32(torch.from_numpy(((guide - s.input_center) / s.input_scale).astype(np.float32)))
-        coef = coef * torch.from_numpy(s.coef_scale.astype(np.float32)) + torch.from_numpy(s.coef_mean.astype(np.float32))
-        torch_out = (torch.from_numpy(pca.mean.astype(np.float32)) + coef @ torch.from_numpy(pca.basis.astype(np.float32)))
+        coef = (coef * torch.from_numpy(s.coef_scale.astype(np.float32))
+                + torch.from_numpy(s.coef_mean.astype(np.float32)))
+        torch_out = (torch.from_numpy(pca.mean.astype(np.float32))
+                     + coef @ torch.from_numpy(pca.basis.astype(np.float32)))
         torch_out = torch_out * torch.from_numpy(guide[:, :1])  # u = d f
         net.double()
     torch_out = torch_out.numpy().reshape(len(guide), -1, 3)

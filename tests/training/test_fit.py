@@ -25,7 +25,8 @@ def test_folder_holds_what_the_manifest_promises(tiny_model, tiny_sweep, tiny_te
     # the linear sweep inverts elements beyond valid_up_to_mm: the model is cut there (test_inversion_stability.py)
     cut_mm = sweep.manifest.validity.valid_up_to_mm
     assert m["envelope"] == {"displacement_mm": [0.0, cut_mm], "angle_deg": [-10.0, 10.0]}
-    assert m["network"]["n_train"] == 11 * int(cut_mm) - 2 and set(m["files"]) == {"model.onnx", "mesh.npz", "report.md"}
+    assert (m["network"]["n_train"] == 11 * int(cut_mm) - 2
+            and set(m["files"]) == {"model.onnx", "mesh.npz", "report.md"})
     assert {"prostate", "prostate_surface", "markers", "guide_patch", "adipose"} <= set(m["regions"])
     assert m["regions"]["markers"] == 8
     rows = m["metrics"]["table3"]
@@ -119,7 +120,8 @@ def _cli(*args):
     ("args", "message"),
     [
         (["--rank", "0"], "--rank must be at least 1"),
-        (["--rank", "500", "--test-case", "5/-2"], "are left to train on once 1 are held out; 500 modes need at least 501"),
+        (["--rank", "500", "--test-case", "5/-2"],
+         "are left to train on once 1 are held out; 500 modes need at least 501"),
         (["--test-case", "7.75"], "--test-case: expected DISPLACEMENT_MM/ANGLE_DEG"),
         (["--test-case", "7.7/-5"], "--test-case 7.7/-5.0: not a snapshot of this sweep"),
     ],
@@ -141,12 +143,12 @@ def test_unfinished_sweep_is_refused(tiny_sweep, tmp_path):
 
 
 def test_cli_writes_the_model_its_flags_ask_for_and_prints_its_metrics(tiny_sweep, tmp_path):
-    run = _cli("fit", "--snapshots", tiny_sweep, "--out", tmp_path / "m", "--rank", "4", "--width", "12", "--iterations",
-               "50", "--seed", "3", "--test-case", "5/-2")
+    run = _cli("fit", "--snapshots", tiny_sweep, "--out", tmp_path / "m", "--rank", "4", "--width", "12",
+               "--iterations", "50", "--seed", "3", "--test-case", "5/-2")
     assert run.returncode == 0, run.stderr
     m = read_model_folder(tmp_path / "m").manifest
-    assert m.fit.model_dump() == {"rank": 4, "sensitivity_rank": 32, "width": 12, "depth": 1, "max_iterations": 50, "seed": 3,
-                                  "test_cases": ((5.0, -2.0),)}
+    assert m.fit.model_dump() == {"rank": 4, "sensitivity_rank": 32, "width": 12, "depth": 1, "max_iterations": 50,
+                                  "seed": 3, "test_cases": ((5.0, -2.0),)}
     assert m.pca.rank == 4 and m.network.width == 12 and m.network.iterations <= 50
     assert [(r.displacement_mm, r.angle_deg) for r in m.metrics.table3] == [(5.0, -2.0)]
     e_nn = float(re.search(r"e_NN ([0-9.]+) mm", run.stdout).group(1))  # the printed line states the stored metric
@@ -184,7 +186,8 @@ MEASURED_SURROGATE = {"markers": 0.004, "prostate_surface": 0.006, "all_nodes": 
 def _model_vs_converged(model, tmp_path, gaps, n_tets=None, measured=MEASURED_SURROGATE):
     folder = read_model_folder(model)
     data = {"kind": "model_vs_converged", "model": str(model), "element": "taylor_hood",
-            "levels": [{"scale": s, "n_tets": n, "n_nodes": 2 * n} for s, n in ((1.69, 100), (1.3, 200), (1.0, 400), (0.769, 800))],
+            "levels": [{"scale": s, "n_tets": n, "n_nodes": 2 * n}
+                       for s, n in ((1.69, 100), (1.3, 200), (1.0, 400), (0.769, 800))],
             "model_mesh": {"n_tets": n_tets or len(folder.mesh.tets), "n_nodes": len(folder.mesh.nodes)},
             "cases": {"10 mm, 0 deg": {"scales": [1.3, 1.0, 0.769]}, "10 mm, 10 deg": {"scales": [1.69, 1.3, 1.0]}},
             "max_over_cases": gaps, **({"model_surrogate_mm": measured} if measured else {})}
@@ -225,6 +228,7 @@ def test_restamp_changes_only_the_accuracy_and_keeps_the_folder_valid(tiny_model
     assert after.model_dump(exclude={"accuracy", "files"}) == before.model_dump(exclude={"accuracy", "files"})
     wrong = _cli("restamp", "--model", model, "--fe-error", _model_vs_converged(model, tmp_path, gaps, n_tets=7))
     assert wrong.returncode == 2 and wrong.stderr.startswith("error: --fe-error:") and "Traceback" not in wrong.stderr
-    unstated = _cli("restamp", "--model", model, "--fe-error", _model_vs_converged(model, tmp_path, gaps, measured=None))
+    unstated = _cli("restamp", "--model", model, "--fe-error",
+                    _model_vs_converged(model, tmp_path, gaps, measured=None))
     assert unstated.returncode == 2 and "model_surrogate_mm" in unstated.stderr
     assert read_model_folder(model).manifest == after

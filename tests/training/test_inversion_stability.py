@@ -58,7 +58,8 @@ def test_the_cut_follows_det_f_between_the_quadrature_points(tiny_model, tiny_sw
 
 def test_held_out_cases_beyond_the_cut_are_counted_not_evaluated(tiny_sweep, tmp_path):
     out, cut_mm = tmp_path / "m", folder.read_manifest(tiny_sweep).validity.valid_up_to_mm
-    m = fit(tiny_sweep, out, FitOptions(rank=4, max_iterations=20, test_cases=((5.0, -2.0), (9.0, 0.0))), progress=False)
+    m = fit(tiny_sweep, out, FitOptions(rank=4, max_iterations=20, test_cases=((5.0, -2.0), (9.0, 0.0))),
+            progress=False)
     assert [(r.displacement_mm, r.angle_deg) for r in m.metrics.table3] == [(5.0, -2.0)]
     assert m.envelope_cut.dropped_test_cases == [(9.0, 0.0)]
     with pytest.raises(ValueError, match=rf"--test-case: every held-out case lies beyond {cut_mm:g} mm"):
@@ -69,7 +70,8 @@ def test_a_sweep_with_no_valid_displacement_is_refused(tiny_sweep, sweep_copy, t
     validity = folder.read_manifest(tiny_sweep).validity
     _edit_manifest(sweep_copy, validity={**validity.model_dump(), "valid_up_to_mm": 0.0})
     with pytest.raises(ValueError, match=r"--snapshots: the sweep turns an element inside out .* no valid snapshot"):
-        fit(sweep_copy, tmp_path / "m", FitOptions(rank=4, max_iterations=20, test_cases=((5.0, -2.0),)), progress=False)
+        fit(sweep_copy, tmp_path / "m", FitOptions(rank=4, max_iterations=20, test_cases=((5.0, -2.0),)),
+            progress=False)
 
 
 def test_a_linear_sweep_never_checked_is_refused(sweep_copy, tmp_path):
@@ -78,7 +80,8 @@ def test_a_linear_sweep_never_checked_is_refused(sweep_copy, tmp_path):
     data.pop("validity")
     (sweep_copy / folder.MANIFEST).write_text(json.dumps(data))
     with pytest.raises(ValueError, match="written before det.*run `fem_offline sweep` again"):
-        fit(sweep_copy, tmp_path / "m", FitOptions(rank=4, max_iterations=20, test_cases=((5.0, -2.0),)), progress=False)
+        fit(sweep_copy, tmp_path / "m", FitOptions(rank=4, max_iterations=20, test_cases=((5.0, -2.0),)),
+            progress=False)
 
 
 def test_the_cli_says_where_the_envelope_was_cut(tiny_sweep, tmp_path, capsys):

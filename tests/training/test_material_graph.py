@@ -30,11 +30,13 @@ def pieces():
 
 
 def _torch_decode(net, s, pca, guide, theta, sigma):
-    """float32 torch: the network, the (1 + M) fields d (mean + c basis), then u0 + S theta and sqrt(sum (S sigma)^2)."""
+    """float32 torch: the network, the (1 + M) fields d (mean + c basis),
+    then u0 + S theta and sqrt(sum (S sigma)^2)."""
     with torch.no_grad():
         net32 = net.float()
         coef = net32(torch.from_numpy(((guide - s.input_center) / s.input_scale).astype(np.float32)))
-        coef = coef * torch.from_numpy(s.coef_scale.astype(np.float32)) + torch.from_numpy(s.coef_mean.astype(np.float32))
+        coef = (coef * torch.from_numpy(s.coef_scale.astype(np.float32))
+                + torch.from_numpy(s.coef_mean.astype(np.float32)))
         coef = coef.reshape(len(guide), 1 + M, -1)
         fields = torch.from_numpy(pca.mean.astype(np.float32)) + coef @ torch.from_numpy(pca.basis.astype(np.float32))
         fields = fields * torch.from_numpy(guide[:, :1, None])
@@ -88,8 +90,9 @@ def test_the_std_is_the_first_order_propagation_of_the_graphs_own_finite_differe
     sess = onnx_session(build_material_graph(folded_layers(net, s), pca, M).SerializeToString())
     guide, sigma = np.array([[7.0, -4.0]], np.float32), np.array([[0.2, 0.1, 0.3]], np.float32)
     h = 0.25
-    slopes = [(sess.run(["displacement"], {"guide": guide, "materials": h * np.eye(M, dtype=np.float32)[i:i + 1]})[0]
-               - sess.run(["displacement"], {"guide": guide, "materials": -h * np.eye(M, dtype=np.float32)[i:i + 1]})[0])
+    unit = np.eye(M, dtype=np.float32)
+    slopes = [(sess.run(["displacement"], {"guide": guide, "materials": h * unit[i:i + 1]})[0]
+               - sess.run(["displacement"], {"guide": guide, "materials": -h * unit[i:i + 1]})[0])
               / (2 * h) for i in range(M)]
     expected = np.sqrt(sum((d * sg) ** 2 for d, sg in zip(slopes, sigma[0])))
     std = sess.run(["displacement_std"], {"guide": guide, "materials_std": sigma})[0]

@@ -44,7 +44,8 @@ def test_the_model_reproduces_the_sweeps_sensitivities_at_a_held_out_case(tiny_m
 
 @pytest.fixture(scope="module")
 def material_cases(tiny_material_sweep, tmp_path_factory):
-    """Fresh FE at the ends of two tissues' ranges (and the two alternating corners), at 5 mm / 0 deg on the sweep's mesh."""
+    """Fresh FE at the ends of two tissues' ranges (and the two alternating corners),
+    at 5 mm / 0 deg on the sweep's mesh."""
     from contracts.mesh import read_mesh
     from fem_offline.material_cases import solve_material_cases
 
@@ -54,7 +55,8 @@ def material_cases(tiny_material_sweep, tmp_path_factory):
     return out
 
 
-def test_material_check_stamps_the_first_order_error_against_fresh_fe(tiny_material_model, material_cases, tmp_path, capsys):
+def test_material_check_stamps_the_first_order_error_against_fresh_fe(tiny_material_model, material_cases, tmp_path,
+                                                                      capsys):
     """u0 + sum S_i theta_i is off the fresh solves by a second-order amount: above zero, and at these |theta| <= 0.28
     (each tissue's range, and both off at once) below a quarter of the first-order change itself (measured: 0.10);
     the ONNX model adds its surrogate error (linear sweep: tiny) to it."""
@@ -128,7 +130,8 @@ def test_regraph_rebuilds_a_material_graph_from_its_own_weights(tiny_material_mo
     m = len(after.materials.inputs)
     g = {"guide": np.array([[4.0, 3.0]], np.float32), "materials": np.linspace(-0.2, 0.1, m, dtype=np.float32)[None],
          "materials_std": np.linspace(0.1, 0.2, m, dtype=np.float32)[None]}
-    old, new = onnx_session(tiny_material_model / "model.onnx").run(None, g), onnx_session(model / "model.onnx").run(None, g)
+    old = onnx_session(tiny_material_model / "model.onnx").run(None, g)
+    new = onnx_session(model / "model.onnx").run(None, g)
     for a, b in zip(old, new):
         np.testing.assert_allclose(b, a, atol=1e-5)
 
@@ -143,7 +146,8 @@ def test_regraph_refuses_a_graph_that_answers_differently_and_writes_nothing(tin
     build = material_graph.build_material_graph
 
     def off_by_a_bit(layers, pca, m, **kw):  # the mean shifted by 1 um: a builder that changed the answer
-        return build(layers, type(pca)(mean=pca.mean + 1e-3, basis=pca.basis, singular_values=pca.singular_values), m, **kw)
+        return build(layers, type(pca)(mean=pca.mean + 1e-3, basis=pca.basis, singular_values=pca.singular_values), m,
+                     **kw)
 
     monkeypatch.setattr(material_graph, "build_material_graph", off_by_a_bit)
     model = tmp_path / "model"

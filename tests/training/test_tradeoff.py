@@ -92,7 +92,8 @@ def test_makespan_and_sweep_estimate():
 
 def test_shaped_graph_decodes_the_level_shape():
     rng = np.random.default_rng(1)
-    layers = [(rng.standard_normal((2, 7)), rng.standard_normal(7)), (rng.standard_normal((7, 5)), rng.standard_normal(5))]
+    layers = [(rng.standard_normal((2, 7)), rng.standard_normal(7)),
+              (rng.standard_normal((7, 5)), rng.standard_normal(5))]
     sess = onnx_session(shaped_graph(layers, 123))
     guide = np.array([[3.0, 1.0]], dtype=np.float32)
     assert sess.run(None, {"guide": guide})[0].shape == (1, 123, 3)
@@ -130,11 +131,13 @@ def test_a_level_under_the_analysed_three_with_a_stored_bound_gets_every_region(
 
 
 def _graded():
-    """The graded-mesh study's result (python -m studies graded-mesh): one mesh, two cases (a full push and a half one)."""
+    """The graded-mesh study's result (python -m studies graded-mesh): one mesh,
+    two cases (a full push and a half one)."""
     def case(m, s, n, seconds):
         return {"seconds": seconds, "markers_mm": m, "interior_mm": 0.0, "surface_probes_mm": {"max": s},
                 "surface_own_nodes_mm": {"max": 0.0}, "all_nodes_mm": 0.0, "all_nodes_probes_mm": n}
-    return {"kind": "graded_mesh", "meshes": [{"tag": "15.6_4_2", "sizes_mm": {"max": 15.6, "prostate": 4.0, "guide": 2.0},
+    return {"kind": "graded_mesh",
+            "meshes": [{"tag": "15.6_4_2", "sizes_mm": {"max": 15.6, "prostate": 4.0, "guide": 2.0},
                                                "n_tets": 6810, "n_nodes": 10123,
                                                "cases": {"10 mm, 0 deg": case(0.09, 0.15, 0.7, 120.0),
                                                          "10 mm, 10 deg": case(0.08, 0.16, 0.6, 150.0),
@@ -150,7 +153,8 @@ def test_a_graded_mesh_is_a_level_with_every_region_at_the_studys_points():
     assert lv.scale is None and lv.label == "graded 15.6:4:2 mm" and (lv.n_tets, lv.n_nodes) == (6810, 10123)
     assert lv.fe_mm == {"markers": 0.09, "prostate_surface": 0.16, "all_nodes": 0.7}
     assert lv.path_seconds == 135.0
-    assert end_to_end({"markers": 0.001, "prostate_surface": 0.002, "all_nodes": 0.01}, lv.fe_mm)["markers"] == pytest.approx(0.091)
+    assert end_to_end({"markers": 0.001, "prostate_surface": 0.002, "all_nodes": 0.01},
+                      lv.fe_mm)["markers"] == pytest.approx(0.091)
     with pytest.raises(ValueError, match="graded_mesh"):
         graded_levels({"kind": "model_vs_converged"})
 
@@ -161,7 +165,8 @@ def test_a_graded_mesh_judged_on_fewer_cases_is_left_out_and_named():
 
     data = _graded()
     shell = json.loads(json.dumps(data["meshes"][0]))
-    shell.update(tag="15.6_4_2_1.2", n_tets=8852, sizes_mm={"max": 15.6, "prostate": 4.0, "guide": 2.0, "surface_near_tip": 1.2})
+    shell.update(tag="15.6_4_2_1.2", n_tets=8852,
+                 sizes_mm={"max": 15.6, "prostate": 4.0, "guide": 2.0, "surface_near_tip": 1.2})
     partial = json.loads(json.dumps(shell))
     partial.update(tag="15.6_4_2_0.9", cases={"10 mm, 10 deg": shell["cases"]["10 mm, 10 deg"]})
     data["meshes"] += [shell, partial]

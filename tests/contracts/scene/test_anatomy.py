@@ -19,7 +19,8 @@ def variants():
 
 
 def test_default_clearances_are_the_closed_forms():
-    """Prostate back y = -10 against the wall's front -9 and the lumen -14; bladder |(0, 4) - (0, -21)| = 25 = 13 + 12."""
+    """Prostate back y = -10 against the wall's front -9 and the lumen -14;
+    bladder |(0, 4) - (0, -21)| = 25 = 13 + 12."""
     c = anatomy.clearances_mm(Phantom())
     assert c["prostate-lumen"] == pytest.approx(4.0, abs=1e-9)
     assert c["bladder-lumen"] == pytest.approx(25.0 - 7.0 - 13.0)
@@ -36,7 +37,8 @@ def test_sampled_clearances_are_within_a_hundredth_of_a_millimetre(variants, var
     fine = anatomy.ellipsoid_surface(ph.prostate_center_mm, ph.prostate_semi_axes_mm,
                                      tuple(4 * n for n in anatomy.SURFACE_STEPS))
     exact = {"prostate-bladder": anatomy.sd_sphere(fine, ph.bladder_center_mm, ph.bladder_radius_mm).min(),
-             "prostate-pubic_bone": anatomy.sd_x_bar(fine, ph.pubic_center_mm, ph.pubic_radius_mm, ph.pubic_length_mm).min(),
+             "prostate-pubic_bone": anatomy.sd_x_bar(fine, ph.pubic_center_mm, ph.pubic_radius_mm,
+                                                     ph.pubic_length_mm).min(),
              "prostate-lumen": anatomy.sd_z_cylinder(fine, ph.rectum_center_xy_mm, ph.rectum_inner_radius_mm).min()}
     for pair, value in exact.items():
         assert coarse[pair] == pytest.approx(value, abs=0.01), pair
@@ -74,7 +76,8 @@ def test_label_map_holds_the_variants_anatomy(variants, variant):
 
 
 @pytest.mark.parametrize(("phantom", "message"), [
-    ({"prostate_center_mm": [0.0, -6.0, 35.0]}, r"the prostate reaches 2\.00 mm into the lumen; at least 1\.0 mm .*prostate_center_mm"),
+    ({"prostate_center_mm": [0.0, -6.0, 35.0]},
+     r"the prostate reaches 2\.00 mm into the lumen; at least 1\.0 mm .*prostate_center_mm"),
     ({"prostate_center_mm": [0.0, -3.5, 35.0]}, r"the prostate leaves 0\.50 mm of rectal wall at the lumen"),
     ({"prostate_semi_axes_mm": [20.0, 10.0, 14.0]}, r"the prostate and the bladder overlap by .*bladder_radius_mm"),
     ({"pubic_center_mm": [0.0, 14.0, 40.0]}, r"the prostate and the pubic_bone overlap by .*pubic_center_mm"),
@@ -90,7 +93,8 @@ def test_a_phantom_that_is_not_anatomy_is_refused_naming_the_fields(phantom, mes
 
 
 @pytest.mark.parametrize(("guide", "message"), [
-    ({"tip_mm": [0.0, -15.0, 35.0]}, r"guide.tip_mm: \[0.0, -15.0, 35.0\] is 1.00 mm off .*nearest point on it is \[0.0, -14.0, 35.0\]"),
+    ({"tip_mm": [0.0, -15.0, 35.0]},
+     r"guide.tip_mm: \[0.0, -15.0, 35.0\] is 1.00 mm off .*nearest point on it is \[0.0, -14.0, 35.0\]"),
     ({"axis": [0.0, -1.0, 0.0]}, r"guide.axis: .* does not push .* into the rectal wall"),
 ])
 def test_a_guide_off_the_lumen_wall_is_refused(guide, message):

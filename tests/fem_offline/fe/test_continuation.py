@@ -16,11 +16,13 @@ def test_hard_corner_converges_without_inversion(corner_path, tiny_problem):
     reactions = np.linalg.norm(np.delete(r, tiny_problem.free))
     assert np.linalg.norm(r[tiny_problem.free]) <= tiny_problem.scene.solver.rtol * reactions
     assert min_j > 0.3 and stats.min_det_f == pytest.approx(min_j)
-    np.testing.assert_allclose(u.ravel()[tiny_problem.guide_dofs.ravel()], tiny_problem.dirichlet(10.0, 10.0)[tiny_problem.guide_dofs.ravel()])
+    np.testing.assert_allclose(u.ravel()[tiny_problem.guide_dofs.ravel()],
+                               tiny_problem.dirichlet(10.0, 10.0)[tiny_problem.guide_dofs.ravel()])
 
 
 def test_failure_is_loud(tiny_scene, tiny_mesh):
     """A push far past what the mesh can take in one step, with no step halving, raises instead of returning."""
-    scene = tiny_scene.model_copy(update={"solver": tiny_scene.solver.model_copy(update={"max_halvings": 0, "max_step_mm": 40.0, "max_iterations": 3})})
+    solver = tiny_scene.solver.model_copy(update={"max_halvings": 0, "max_step_mm": 40.0, "max_iterations": 3})
+    scene = tiny_scene.model_copy(update={"solver": solver})
     with pytest.raises(ConvergenceError):
         solve_case(build_problem(scene, tiny_mesh), 40.0, 10.0)

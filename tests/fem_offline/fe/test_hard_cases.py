@@ -1,5 +1,6 @@
 """The patient box's hardest corner and the ratio invariance, with the element and the contact penalty of
-fem_offline/scenes/patient_box.toml (studies/hard_cases.py): P2/P0 mean dilatation, k scaled with the stiffest tissue's E."""
+fem_offline/scenes/patient_box.toml (studies/hard_cases.py): P2/P0 mean dilatation,
+k scaled with the stiffest tissue's E."""
 
 import numpy as np
 import pytest
@@ -91,8 +92,9 @@ def test_the_sensitivities_sum_to_zero_with_the_tip_in_contact(scaled_contact):
 
 @pytest.mark.slow
 def test_the_rectal_walls_sensitivity_is_the_central_difference_with_the_scaled_penalty(tiny_scene, tiny_mesh):
-    """The wall's E (the stiffest tissue here) moves the penalty with it: S_wall against (u(E e^h) - u(E e^-h)) / 2h, h = 0.02, with the
-    contact settled to 1e-5 mm (the default 5e-3 mm / h would swamp the quotient) and Newton to 1e-9."""
+    """The wall's E (the stiffest tissue here) moves the penalty with it: S_wall against (u(E e^h) - u(E e^-h)) / 2h,
+    h = 0.02, with the contact settled to 1e-5 mm (the default 5e-3 mm / h would swamp the quotient) and Newton to
+    1e-9."""
     scene = formulation(_contact(tiny_scene, 1.0), "mean_dilatation", CONTACT_PER_MM)
     scene = scene.model_copy(update={"guide": scene.guide.model_copy(update={"contact_tol_mm": 1e-5}),
                                      "solver": scene.solver.model_copy(update={"rtol": 1e-9})})

@@ -22,7 +22,8 @@ def _equilibrium(problem, u):
 
 @pytest.mark.slow
 def test_sweep_corners_at_10mm_are_in_equilibrium(tiny_problem, corner_path):
-    """beta = -10 and +10 deg at 10 mm (the +10 path is the corner_path fixture, shared with test_continuation and test_solve)."""
+    """beta = -10 and +10 deg at 10 mm (the +10 path is the corner_path fixture,
+    shared with test_continuation and test_solve)."""
     (_, u_minus, _), = solve_path(tiny_problem, [10.0], -10.0)
     for u in (u_minus, corner_path[-1][1]):
         rel, min_j = _equilibrium(tiny_problem, u)
@@ -60,7 +61,8 @@ def _with_elastic_pubic_bone(scene, mesh, ratio):
 @pytest.fixture(scope="module")
 def contrast_solutions(tiny_scene, tiny_mesh):
     out = {}
-    linear = tiny_scene.model_copy(update={"effects": tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})})
+    effects = tiny_scene.effects.model_copy(update={"geometric_nonlinearity": False})
+    linear = tiny_scene.model_copy(update={"effects": effects})
     for ratio in (235.0, 1.7e5):  # Table 1: E_exp bone / fat, and E_L bone / fat
         problem = build_problem(*_with_elastic_pubic_bone(linear, tiny_mesh, ratio))
         u, _ = solve_case(problem, 10.0, 10.0)

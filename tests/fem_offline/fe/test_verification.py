@@ -65,7 +65,8 @@ def test_neo_hookean_tangent_is_the_derivative_of_the_internal_force():
     assert J.min() < 0.9 and J.max() > 1.1
     K = assemble_matrix(pattern, el.neo_hookean_tangent(G, W, Finv, J, mu, lam))
     h = 1e-6
-    fd = (internal_force_nh(pattern, G, W, mu, lam, u + h * v) - internal_force_nh(pattern, G, W, mu, lam, u - h * v)) / (2 * h)
+    fd = (internal_force_nh(pattern, G, W, mu, lam, u + h * v)
+          - internal_force_nh(pattern, G, W, mu, lam, u - h * v)) / (2 * h)
     np.testing.assert_allclose(K @ v, fd, atol=1e-6 * np.abs(fd).max())
     np.testing.assert_allclose((K - K.T).toarray(), 0, atol=1e-12 * np.abs(K).max())
 

@@ -12,8 +12,13 @@ def test_user_mesh_is_read_with_tissue_tags(tiny_mesh, tiny_scene, tmp_path):
     path = tmp_path / "user.msh"
     cells = [("tetra", tiny_mesh.tets[:, :4])]
     tags = tiny_mesh.tissue + 1
-    meshio.write(path, meshio.Mesh(tiny_mesh.nodes, cells, cell_data={"gmsh:physical": [tags], "gmsh:geometrical": [tags]}), file_format="gmsh22")
-    scene = tiny_scene.model_copy(update={"phantom": None, "mesh_file": UserMesh(path=path, tags={n: i + 1 for i, n in enumerate(tiny_mesh.tissue_names)})})
+    meshio.write(path,
+                 meshio.Mesh(tiny_mesh.nodes, cells, cell_data={"gmsh:physical": [tags], "gmsh:geometrical": [tags]}),
+                 file_format="gmsh22")
+    scene = tiny_scene.model_copy(update={"phantom": None,
+                                          "mesh_file": UserMesh(path=path,
+                                                                tags={n: i + 1
+                                                                      for i, n in enumerate(tiny_mesh.tissue_names)})})
     user = mesh_for_scene(scene)
     assert len(user.tets) == len(tiny_mesh.tets)
     assert len(user.nodes) == len(tiny_mesh.nodes), (len(user.nodes), len(tiny_mesh.nodes))

@@ -1,4 +1,5 @@
-"""Label maps: read back in patient coordinates, bad input named, meshed into valid conforming tissues of the right volume."""
+"""Label maps: read back in patient coordinates, bad input named,
+meshed into valid conforming tissues of the right volume."""
 
 import importlib.util
 
@@ -21,7 +22,8 @@ MESHERS = [m for m, package in (("cgal", "pygalmesh"), ("tetgen", "tetgen")) if 
 # (-3.1, -2.1, -0.1, -5.1, -2.6, +0.1 %): facets inscribed in convex surfaces lose volume. TetGen (-0.5,
 # -1.8, +1.5, -0.4, +1.6, +0.0 %): the smoothed surface nets, decimated by at most 0.25-0.5 voxel.
 VOLUME_TOLERANCE_1MM = {
-    "cgal": {"prostate": 0.05, "rectal_wall": 0.04, "bladder": 0.03, "pubic_bone": 0.08, "spine": 0.04, "adipose": 0.01},
+    "cgal": {"prostate": 0.05, "rectal_wall": 0.04, "bladder": 0.03, "pubic_bone": 0.08, "spine": 0.04,
+             "adipose": 0.01},
     "tetgen": {"prostate": 0.01, "rectal_wall": 0.025, "bladder": 0.025, "pubic_bone": 0.01, "spine": 0.025,
                "adipose": 0.005},
 }
@@ -70,7 +72,8 @@ def test_voxel_centres_are_where_the_phantom_says(tiny_scene, image_1mm):
     centre = np.asarray(tiny_scene.phantom.prostate_center_mm)
     ijk = np.rint(image_1mm.to_index(centre[None]))[0].astype(int)
     assert image_1mm.labels[tuple(ijk)] == LABELS["prostate"]
-    assert np.abs(image_1mm.affine[:3, 3]).max() > 1 and not np.allclose(image_1mm.affine[:3, :3], np.diag(np.diag(image_1mm.affine[:3, :3])))
+    linear = image_1mm.affine[:3, :3]
+    assert np.abs(image_1mm.affine[:3, 3]).max() > 1 and not np.allclose(linear, np.diag(np.diag(linear)))
 
 
 def test_nrrd_without_spacing_is_refused_naming_the_field(tmp_path):
@@ -230,14 +233,17 @@ def test_guide_tip_seats_on_the_lumen_surface_on_its_axis(lm_mesh, lm_scene, tin
     np.testing.assert_array_equal(by_node.point, lm_mesh.nodes[by_node.node])
     assert by_node.offset_mm <= seat.offset_mm + np.linalg.norm(seat.point - lm_mesh.nodes[seat.node])
     far = lm_scene.guide.model_copy(update={"tip_mm": (0.0, -21.0, 35.0)})  # the lumen's axis: 7 mm off the wall
-    with pytest.raises(ValueError, match=r"guide.tip_mm: .* along the guide axis from the rectal wall's lumen surface .*guide.snap_mm"):
+    with pytest.raises(ValueError, match=r"guide.tip_mm: .* along the guide axis from the rectal wall's lumen surface "
+                                         r".*guide.snap_mm"):
         guide_patch.tip(lm_mesh, far)
     aside = lm_scene.guide.model_copy(update={"tip_mm": (60.0, -14.0, 35.0)})  # its axis misses the rectum
-    with pytest.raises(ValueError, match=r"guide.tip_mm: the guide axis .* never crosses the rectal wall's lumen surface"):
+    with pytest.raises(ValueError,
+                       match=r"guide.tip_mm: the guide axis .* never crosses the rectal wall's lumen surface"):
         guide_patch.tip(lm_mesh, aside)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("pygalmesh") is None, reason="CGAL's mesher needs pygalmesh (`make labelmesh`)")
+@pytest.mark.skipif(importlib.util.find_spec("pygalmesh") is None,
+                    reason="CGAL's mesher needs pygalmesh (`make labelmesh`)")
 def test_cgal_facet_distance_trades_surface_fidelity_for_tets(tiny_scene, image_1mm, tmp_path):
     """label_map.facet_distance_voxels: a looser surface gives fewer tets, still valid and conforming,
     and, its facets inscribed farther into the voxels, a prostate farther from the phantom's volume."""

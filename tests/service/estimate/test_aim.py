@@ -36,7 +36,8 @@ def test_the_planned_needle_path_passes_the_displaced_lesion_at_the_stated_miss(
     assert reply["reachable"] and pose["displacement_mm"] == 4.0
     assert pose["miss_mm"] == pytest.approx(_miss_at(tiny_client, guide, lesion, 4.0, pose["angle_deg"]), abs=1e-4)
     assert pose["miss_mm"] < 0.05
-    np.testing.assert_allclose(reply["needle_tip_mm"], guide.tip_mm + 4.0 * guide.direction(pose["angle_deg"]), atol=1e-9)
+    np.testing.assert_allclose(reply["needle_tip_mm"], guide.tip_mm + 4.0 * guide.direction(pose["angle_deg"]),
+                               atol=1e-9)
     assert reply["naive"]["miss_mm"] >= pose["miss_mm"]
 
 
@@ -49,7 +50,8 @@ def test_an_unreachable_lesion_is_said_to_be_so_with_the_closest_approach(tiny_c
     assert not reply["reachable"] and reply["message"].startswith("unreachable")
     assert reply["plan"]["miss_mm"] > REACH_MM
     (d_lo, d_hi), (a_lo, a_hi) = tiny_folder.manifest.envelope.displacement_mm, tiny_folder.manifest.envelope.angle_deg
-    grid = [_miss_at(tiny_client, guide, lesion, d, a) for d in np.linspace(d_lo, d_hi, 6) for a in np.linspace(a_lo, a_hi, 11)]
+    grid = [_miss_at(tiny_client, guide, lesion, d, a) for d in np.linspace(d_lo, d_hi, 6)
+            for a in np.linspace(a_lo, a_hi, 11)]
     assert reply["plan"]["miss_mm"] <= min(grid) + 1e-6
 
 

@@ -49,7 +49,8 @@ def test_tracked_points_in_reference_coordinates_work_like_markers(tiny_client, 
     """Points given by their reference position (here: the markers' nodes, and a prostate point) recover the state."""
     refs = tiny_folder.nodes[tiny_folder.regions["markers"][:4]].tolist() + [prostate_point(tiny_folder)]
     at = predict_json(tiny_client, points=refs, **TRUTH)["positions"]
-    reply = _estimate(tiny_client, points=[{"reference_mm": r, "position_mm": p, "std_mm": 0.1} for r, p in zip(refs, at)])
+    reply = _estimate(tiny_client, points=[{"reference_mm": r, "position_mm": p, "std_mm": 0.1}
+                                           for r, p in zip(refs, at)])
     state = _state(reply)
     assert state["displacement_mm"]["value"] == pytest.approx(TRUTH["displacement_mm"], abs=1e-3)
     assert state["angle_deg"]["value"] == pytest.approx(TRUTH["angle_deg"], abs=1e-2)
@@ -115,14 +116,16 @@ def test_the_95_percent_region_covers_the_truth_about_95_percent_of_the_time(tin
     95 % ellipse of (d, beta) and each target's 95 % ellipsoid hold the truth in 90-99 % of cases (binomial sd 1.5 %),
     and the contradiction flag is raised at about its rate (<= 3 %)."""
     space = StateSpace.of(tiny_predictor)
-    pts = point_set(tiny_predictor, node_ids=tiny_folder.regions["markers"], points=np.array([prostate_point(tiny_folder)]))
+    pts = point_set(tiny_predictor, node_ids=tiny_folder.regions["markers"],
+                    points=np.array([prostate_point(tiny_folder)]))
     rng, NOISE_MM = np.random.default_rng(0), 0.02
     hits, target_hits, flags, n = 0, 0, 0, 200
     for _ in range(n):
         truth = np.array([rng.uniform(1.0, 5.0), rng.uniform(-10.0, 10.0)])
         at = positions(tiny_predictor, space, pts, truth)[0]
         observed = at[:8] + rng.normal(0.0, NOISE_MM, (8, 3))
-        fit = estimate(tiny_predictor, space, Problem(pts, 8, observed, np.full(8, NOISE_MM), np.zeros(2), np.full(2, np.inf)))
+        fit = estimate(tiny_predictor, space, Problem(pts, 8, observed, np.full(8, NOISE_MM), np.zeros(2),
+                                                      np.full(2, np.inf)))
         e = fit.x - truth
         hits += e @ np.linalg.solve(fit.covariance, e) <= stats.chi2.ppf(0.95, 2)
         t = fit.targets[0] - at[8]
@@ -144,7 +147,8 @@ def test_the_95_percent_region_covers_the_truth_about_95_percent_of_the_time(tin
      "points.0.reference_mm", "outside_mesh"),
     ({"markers": [{"index": 0, "position_mm": [0, 0, 0], "std_mm": 0.2}],
       "prior": {"displacement_mm": {"value": 50.0, "std": 1.0}}}, "prior.displacement_mm.value", "less_than_equal"),
-    ({"markers": [{"index": 0, "position_mm": [0, 0, 0], "std_mm": 0.2}], "materials": {}}, "materials", "extra_forbidden"),
+    ({"markers": [{"index": 0, "position_mm": [0, 0, 0], "std_mm": 0.2}], "materials": {}}, "materials",
+     "extra_forbidden"),
 ])
 def test_a_bad_estimate_request_is_a_422_naming_the_field(tiny_client, body, field, kind):
     reply = tiny_client.post("/estimate", json=body)
@@ -165,7 +169,8 @@ def test_the_stream_answers_each_frame_and_survives_a_bad_one(tiny_client):
         ws.send_json({"markers": markers})
         again = ws.receive_json()
     for reply in (first, again):
-        np.testing.assert_allclose([p["value"] for p in reply["state"]], [p["value"] for p in posted["state"]], atol=1e-4)
+        np.testing.assert_allclose([p["value"] for p in reply["state"]], [p["value"] for p in posted["state"]],
+                                   atol=1e-4)
     assert {d["field"] for d in bad["detail"]} == {"markers.0.position_mm", "markers.0.std_mm"}
     assert again["fit"]["iterations"] <= first["fit"]["iterations"]  # from the previous frame's state
 

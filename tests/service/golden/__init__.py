@@ -141,7 +141,8 @@ def predict_requests() -> list[dict]:
         _predict("predict_markers_materials_json", {**GUIDE, "region": "markers", "materials": MATERIALS}),
         _predict("predict_points_materials_json", {**GUIDE, "points": INSIDE, "materials": MATERIALS}),
         _predict("predict_points_uncertain_json", {**GUIDE, "points": INSIDE, "materials": {
-            "prostate": {"youngs_kpa": 60.0, "std_percent": 40.0}, "bladder": {"shear_wave_speed_m_s": 5.8, "std": 1.0}}}),
+            "prostate": {"youngs_kpa": 60.0, "std_percent": 40.0},
+            "bladder": {"shear_wave_speed_m_s": 5.8, "std": 1.0}}}),
         _predict("predict_markers_no_std_json", {**GUIDE, "region": "markers", "materials": {
             name: {"std_percent": 0.0} for name in ("prostate", "rectal_wall", "adipose", "bladder")}}),
         # a query string takes FastAPI's own path rather than the direct one (routes.PredictRoute)
@@ -172,7 +173,8 @@ def error_requests() -> list[dict]:
         _predict("error_materials_out_of_range", {**GUIDE, "materials": {"prostate": {"youngs_kpa": 500.0}}}),
         _predict("error_materials_both_values", {**GUIDE, "materials": {
             "prostate": {"youngs_kpa": 60.0, "shear_wave_speed_m_s": 4.0}}}),
-        _predict("error_materials_std_over_value", {**GUIDE, "materials": {"prostate": {"youngs_kpa": 60.0, "std": 61.0}}}),
+        _predict("error_materials_std_over_value",
+                 {**GUIDE, "materials": {"prostate": {"youngs_kpa": 60.0, "std": 61.0}}}),
         _predict("error_materials_unknown_tissue", {**GUIDE, "materials": {"liver": {"youngs_kpa": 60.0}}}),
         _predict("error_format_with_materials", {**GUIDE, "materials": MATERIALS}, query="?format=vtu"),
         _predict("error_format_unknown", GUIDE, query="?format=stl"),
@@ -187,7 +189,8 @@ def error_requests() -> list[dict]:
         _get("error_not_found", "/nope"),
         _get("error_predict_by_get", "/predict"),
         _post("error_estimate_nothing_tracked", "/estimate", {"targets": [INSIDE[0]]}),
-        _post("error_estimate_bad_marker", "/estimate", {"markers": [{"index": 8, "position_mm": [0, 0, 0], "std_mm": 0.2}]}),
+        _post("error_estimate_bad_marker", "/estimate",
+              {"markers": [{"index": 8, "position_mm": [0, 0, 0], "std_mm": 0.2}]}),
         _post("error_estimate_target_outside_mesh", "/estimate", {
             "points": [{"reference_mm": INSIDE[0], "position_mm": INSIDE[0], "std_mm": 0.2}], "targets": [LUMEN]}),
         _post("error_plan_outside_mesh", "/plan", {"lesion_mm": LUMEN}),

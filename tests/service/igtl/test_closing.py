@@ -68,7 +68,8 @@ def test_tracked_markers_give_post_estimates_state_and_lesions(served, peer, tin
     markers = _tracked_markers(client, **TRUTH)
     peer.send_message(_points(TRACKED_NAME, markers, DIAMETER), wait=True)
     report = json.loads(peer.wait_for_message(ESTIMATE_REPORT_NAME, timeout=20).string)
-    pose, moved = peer.wait_for_message(ESTIMATED_GUIDE_NAME, timeout=1), peer.wait_for_message(ESTIMATED_LESIONS_NAME, timeout=1)
+    pose = peer.wait_for_message(ESTIMATED_GUIDE_NAME, timeout=1)
+    moved = peer.wait_for_message(ESTIMATED_LESIONS_NAME, timeout=1)
     np.testing.assert_allclose(guide.from_pose(pose.matrix), list(TRUTH.values()), atol=2e-3)
     std = float(np.float32(DIAMETER)) / (2 * HALO_SIGMAS * math.sqrt(3))  # the diameter as the message carries it
     body = {"markers": [{"index": i, "position_mm": p, "std_mm": float(std)} for i, p in enumerate(_float32(markers))],
@@ -79,10 +80,11 @@ def test_tracked_markers_give_post_estimates_state_and_lesions(served, peer, tin
     np.testing.assert_allclose(moved.positions, [t["position_mm"] for t in http["targets"]], atol=1e-4)
     sigma = np.linalg.norm([t["std_mm"] for t in http["targets"]], axis=1)
     np.testing.assert_allclose(moved.diameters, 2 * HALO_SIGMAS * sigma, rtol=1e-5)
-    assert [report["lesions"][n]["total_mm"] for n in lesions] == pytest.approx([t["total_mm"] for t in http["targets"]])
+    assert ([report["lesions"][n]["total_mm"] for n in lesions]
+            == pytest.approx([t["total_mm"] for t in http["targets"]]))
     # and the lesions are where the tissue carries them at the true state
-    np.testing.assert_allclose(moved.positions, predict_json(client, points=list(lesions.values()), **TRUTH)["positions"],
-                               atol=2e-3)
+    at_truth = predict_json(client, points=list(lesions.values()), **TRUTH)["positions"]
+    np.testing.assert_allclose(moved.positions, at_truth, atol=2e-3)
 
 
 def test_tracked_reference_points_work_like_markers(served, peer, tiny_folder):  # noqa: F811
@@ -141,7 +143,8 @@ def test_a_plan_over_the_socket_is_post_plans_and_its_needle_passes_the_lesion(s
     lesion = _float32({"L1": _lesions(tiny_folder, guide)["L1"]})[0]
     peer.send_message(_points(PLAN_LESION_NAME, {"L1": lesion}), wait=True)
     report = json.loads(peer.wait_for_message(PLAN_REPORT_NAME, timeout=20).string)
-    planned, miss = peer.wait_for_message(PLANNED_GUIDE_NAME, timeout=1), peer.wait_for_message(PLANNED_MISS_NAME, timeout=1)
+    planned = peer.wait_for_message(PLANNED_GUIDE_NAME, timeout=1)
+    miss = peer.wait_for_message(PLANNED_MISS_NAME, timeout=1)
     http = client.post("/plan", json={"lesion_mm": lesion}).json()
     assert report["reachable"] and report["lesion"] == "L1" and report["message"] == http["message"]
     assert report["miss_mm"] == http["plan"]["miss_mm"] and report["naive"]["miss_mm"] == http["naive"]["miss_mm"]
@@ -149,7 +152,8 @@ def test_a_plan_over_the_socket_is_post_plans_and_its_needle_passes_the_lesion(s
     d, beta = guide.from_pose(planned.matrix)
     at = predict_json(client, points=[lesion], displacement_mm=d, angle_deg=beta)["positions"][0]
     np.testing.assert_allclose(miss.positions[0], at, atol=1e-3)
-    assert miss.names == ["L1", "L1_needle"] and miss.diameters[0] == pytest.approx(2 * HALO_SIGMAS * http["miss_std_mm"])
+    assert (miss.names == ["L1", "L1_needle"]
+            and miss.diameters[0] == pytest.approx(2 * HALO_SIGMAS * http["miss_std_mm"]))
     gap = float(np.linalg.norm(np.subtract(miss.positions[0], miss.positions[1])))
     assert gap == pytest.approx(report["miss_mm"], abs=1e-4) and gap < 0.05
     assert ray_miss(guide, np.array([d]), np.array([beta]), np.array([at]))[0][0] < 0.05

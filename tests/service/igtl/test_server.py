@@ -139,7 +139,8 @@ def test_prostate_surface_as_polydata(tiny_folder, tiny_predictor):  # noqa: F81
     responder = Responder(tiny_folder, surface=True)
     pose = pyigtl.TransformMessage(Guide.of(tiny_folder.manifest).pose(4.5, -6.0), device_name="NeedleGuide")
     points, polydata = responder.answer(tiny_predictor, pose)
-    assert (points.message_type, polydata.message_type, polydata.device_name) == ("POINT", "POLYDATA", "ProstateSurface")
+    kinds = (points.message_type, polydata.message_type, polydata.device_name)
+    assert kinds == ("POINT", "POLYDATA", "ProstateSurface")
     body = polydata.pack()[58:]
     n_points, _, _, _, _, n_polygons, size_polygons, _, _, n_attributes = struct.unpack(">10I", body[:40])
     xyz = np.frombuffer(body, ">f4", 3 * n_points, 40).reshape(-1, 3)
@@ -174,7 +175,8 @@ def test_a_material_model_sends_its_2_sigma_spheres_over_the_socket(tiny_materia
     with TestClient(create_app(settings)) as client:
         peer = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=settings.igtl_port)
         try:
-            peer.send_message(pyigtl.StringMessage(json.dumps(materials), device_name="NeedleGuideMaterials"), wait=True)
+            peer.send_message(pyigtl.StringMessage(json.dumps(materials), device_name="NeedleGuideMaterials"),
+                              wait=True)
             assert peer.wait_for_message(STATUS_NAME, timeout=10).string.startswith("materials set")
             points = _ask(peer, Guide.of(folder.manifest).pose(4.0, 3.0))
         finally:

@@ -31,7 +31,8 @@ def test_over_the_rate_gets_429_with_retry_after_per_client(settings):
         assert [c.post("/predict", json=BODY, headers=alice).status_code for _ in range(2)] == [200, 200]
         r = c.post("/predict", json=BODY, headers=alice)
         assert r.status_code == 429 and 1 <= int(r.headers["retry-after"]) <= 100
-        assert r.json()["detail"][0]["type"] == "rate_limited" and "0.01 requests a second" in r.json()["detail"][0]["message"]
+        detail = r.json()["detail"][0]
+        assert detail["type"] == "rate_limited" and "0.01 requests a second" in detail["message"]
         assert c.get("/model", headers=alice).status_code == 429  # every path but health counts
         assert c.get("/healthz").status_code == 200 and c.get("/readyz").status_code == 200
         assert c.post("/predict", json=BODY, headers=bob).status_code == 200  # bob has his own bucket
@@ -52,7 +53,8 @@ def test_a_full_service_answers_503_with_retry_after(settings, monkeypatch):
         return real(*args)
 
     monkeypatch.setattr(pipeline, "predict_batch", held)
-    app = create_app(settings.model_copy(update={"max_pending": 1, "inline_max_ms": 0}))  # the first waits in the batcher
+    # the first waits in the batcher
+    app = create_app(settings.model_copy(update={"max_pending": 1, "inline_max_ms": 0}))
 
     async def scenario():
         async with app.router.lifespan_context(app), httpx.AsyncClient(

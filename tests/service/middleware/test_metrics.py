@@ -29,7 +29,8 @@ def test_the_middleware_labels_every_status_of_predict(status):
         await send({"type": "http.response.body", "body": b""})
 
     metrics = Metrics()
-    client = TestClient(PredictMetrics(app, metrics=metrics, served_paths=frozenset), raise_server_exceptions=False)  # no lifespan
+    # no lifespan
+    client = TestClient(PredictMetrics(app, metrics=metrics, served_paths=frozenset), raise_server_exceptions=False)
     client.post("/predict", content=b"{}")
     client.get("/healthz")  # another path: not counted
     text = metrics.text().decode()
