@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import http.client
 import os
-import sys
 import threading
 import time
 from pathlib import Path

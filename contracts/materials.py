@@ -75,7 +75,7 @@ class OutsideBox(ValueError):
 def ratio_shift_interval(theta: Sequence[float], lo: Sequence[float], hi: Sequence[float]) -> tuple[float, float]:
     """[max_i (theta_i - hi_i), min_i (theta_i - lo_i)]: the common shifts c that put theta - c in the box
     (empty when the first exceeds the second)."""
-    return max(t - h for t, h in zip(theta, hi)), min(t - l for t, l in zip(theta, lo))
+    return max(t - high for t, high in zip(theta, hi)), min(t - low for t, low in zip(theta, lo))
 
 
 def ratio_point(theta: Sequence[float], lo: Sequence[float], hi: Sequence[float],

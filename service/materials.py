@@ -26,7 +26,7 @@ size (the viewer's halo, OpenIGTLink's point diameter) draws the same HALO_SIGMA
 from __future__ import annotations
 
 import math
-from typing import Annotated, ClassVar, Optional
+from typing import Annotated, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
@@ -217,8 +217,9 @@ def box(info: MaterialsInfo) -> dict:
     if info.by_ratios:  # one tissue moved, the others at their nominal E: the shifts the others allow widen its range
         out["youngs_kpa_alone"] = {}
         for i, m in enumerate(info.inputs):
-            shift_lo = max([-h for j, h in enumerate(hi) if j != i], default=0.0)  # c >= theta_j - hi_j, theta_j = 0
-            shift_hi = min([-l for j, l in enumerate(lo) if j != i], default=0.0)  # c <= theta_j - lo_j
+            # c >= theta_j - hi_j and c <= theta_j - lo_j, with theta_j = 0
+            shift_lo = max([-high for j, high in enumerate(hi) if j != i], default=0.0)
+            shift_hi = min([-low for j, low in enumerate(lo) if j != i], default=0.0)
             out["youngs_kpa_alone"][m.tissue] = [m.nominal_youngs_kpa * math.exp(lo[i] + shift_lo),
                                                  m.nominal_youngs_kpa * math.exp(hi[i] + shift_hi)]
     return out

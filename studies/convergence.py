@@ -183,7 +183,7 @@ def solve_resumable(problem: Problem, displacement_mm: float, angle_deg: float,
     n = max(1, int(np.ceil((displacement_mm - start) / step - 1e-9)))
     targets = np.linspace(start, displacement_mm, n + 1)[1:]
     previous = list(state.history) + [(state.d_mm, state.u)] if state else []
-    for d, u, stats, state in solve_path(problem, targets, angle_deg, state, with_state=True):
+    for d, u, stats, state in solve_path(problem, targets, angle_deg, state, with_state=True):  # noqa: B020 -- resumes from it
         seconds += stats.seconds
         previous = (previous + [(d, u.ravel())])[-3:]
         hist = previous[:-1]

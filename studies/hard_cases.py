@@ -136,7 +136,7 @@ def solve_one(scene_path: str, mesh_path: str | None, element: str, factors: dic
            "factorizations": 0, "penetration_mm": 0.0, "failure": ""}
     t0, u = time.perf_counter(), np.zeros(problem.n_dofs)
     try:
-        for d, u, stats in solve_path(problem, pushes, angle_deg):
+        for d, u, stats in solve_path(problem, pushes, angle_deg):  # noqa: B007 -- the last u is judged below
             row.update(reached_mm=float(d), load_steps=row["load_steps"] + 1 + stats.halvings,
                        halvings=row["halvings"] + stats.halvings, penetration_mm=float(stats.penetration_mm),
                        newton_iterations=row["newton_iterations"] + stats.iterations,

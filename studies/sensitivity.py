@@ -15,7 +15,6 @@ Poisson ratio against 0.495. Every path is saved under --out when done; a rerun 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time

@@ -95,7 +95,7 @@ def local_service_process(*flags: str, cwd: Path | None = None, wait_s: float = 
                 break
             except OSError:
                 if time.monotonic() > deadline or server.poll() is not None:
-                    raise SystemExit(f"error: the service did not become ready in {wait_s:.0f} s")
+                    raise SystemExit(f"error: the service did not become ready in {wait_s:.0f} s") from None
                 time.sleep(0.25)
         yield url, server
     finally:

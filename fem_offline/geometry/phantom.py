@@ -103,7 +103,7 @@ def _fragment(occ, shapes: dict[str, int]) -> dict[str, list[int]]:
     _, piece_map = occ.fragment(objects[:1], objects[1:])
     owner: dict[int, str] = {}
     for name in sorted(names, key=PRIORITY.index, reverse=True):
-        for dim, tag in piece_map[names.index(name)]:
+        for _dim, tag in piece_map[names.index(name)]:
             owner[tag] = name  # later (higher-priority) names overwrite
     occ.synchronize()
     pieces: dict[str, list[int]] = {n: [] for n in names}

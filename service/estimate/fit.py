@@ -210,7 +210,7 @@ def estimate(predictor: Predictor, space: StateSpace, problem: Problem, x0: np.n
     pos, jac = with_jacobian(predictor, space, problem.points, x)
     r, j = _residual(problem, x, pos, jac)
     cost, lam, converged, it = float(r @ r), 1e-3, False, 0
-    for it in range(1, MAX_ITERATIONS + 1):
+    for it in range(1, MAX_ITERATIONS + 1):  # noqa: B007 -- its last value is the iteration count
         step = _bounded_step(space, x, j, r, lam)
         if _negligible(space, step, x, j):
             converged = True

@@ -34,7 +34,8 @@ def _serve(*flags, scheme="http", context=None):
                 break
             except OSError:
                 if proc.poll() is not None or time.monotonic() > deadline:
-                    raise AssertionError(f"the service did not start: {proc.communicate(timeout=10)[1][-2000:]}")
+                    stderr = proc.communicate(timeout=10)[1]
+                    raise AssertionError(f"the service did not start: {stderr[-2000:]}") from None
                 time.sleep(0.25)
         yield url, proc
     finally:
