@@ -10,7 +10,7 @@ PORT ?= 8000
 IMAGE ?= deform-service
 
 .DEFAULT_GOAL := help
-.PHONY: help docs docs-serve install serve test test-fast bench bench-service bench-service-defaults tradeoff convergence fe-error-taylor-hood graded-mesh linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
+.PHONY: help docs docs-serve install serve lint test test-fast bench bench-service bench-service-defaults tradeoff convergence fe-error-taylor-hood graded-mesh linear-validity default-model container-test clean system-deps viewer-assets labelmesh anatomy-table
 
 # gmsh's PyPI wheel links a few X/GL libraries a bare Debian lacks.
 GMSH_DEBS := libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1
@@ -78,7 +78,11 @@ docs: $(DOCS_STAMP) ## build the documentation site offline into SITE (site/), m
 docs-serve: $(DOCS_STAMP) ## serve the documentation site on 127.0.0.1:8001, rebuilding on change
 	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs serve --dev-addr 127.0.0.1:8001
 
-test: $(STAMP) ## install everything and run the whole test suite (what CI runs)
+# ruff with pyproject.toml's [tool.ruff] settings: pycodestyle, pyflakes and bugbear, 120 columns.
+lint: $(STAMP) ## ruff check: style and likely bugs (pyproject [tool.ruff])
+	$(PY) -m ruff check .
+
+test: $(STAMP) lint ## install everything, lint, and run the whole test suite (what CI runs)
 	$(PY) -m pytest -q
 
 # The local loop: everything but the minutes-long nonlinear stability runs.
