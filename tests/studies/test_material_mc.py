@@ -18,7 +18,7 @@ def test_draws_have_the_services_sigma_and_stay_inside_the_ranges():
     scene = tiny_material_scene()
     tissues, theta, sigma = draws(scene, 4000, seed=1)
     assert tissues == tuple(TINY_MATERIALS)
-    info = materials_info(scene.model_dump(mode="json"))
+    info = materials_info(scene)
     np.testing.assert_allclose(sigma, material_vectors(info, None)[1], rtol=1e-6)
     stated = materials_request_model(info).model_validate({t: {"std_percent": 20.0} for t in tissues})
     np.testing.assert_allclose(sigma, material_vectors(info, stated)[1], rtol=1e-6)
