@@ -46,6 +46,8 @@ class Design(BaseModel):
     log_box: dict[str, tuple[float, float]]  # tissue -> (lo, hi) of theta
     points: list[DesignPoint]
     scene: RecordedScene | None = None  # the base scene: the nominal stiffnesses and the box. None: not recorded yet
+    # the paths' push step, mm, when not the scene's (a held-out set needs only the equilibria, not the fine path)
+    displacement_step_mm: float | None = None
 
 
 def read_design_file(folder: str | Path) -> Design:

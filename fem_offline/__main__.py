@@ -53,6 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--workers", type=number("--workers", int, minimum=1), default=2,
                    help="local processes, one path each (default 2)")
     g.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local pool)")
+    g.add_argument("--push-step", type=number("--push-step", minimum=0), default=None, metavar="MM",
+                   help="push step of every path (default: the scene's); a held-out set needs only the equilibria, "
+                        "so a coarser step (e.g. 1) solves it in fewer steps, halved where one fails")
 
     c = sub.add_parser("cases",
                        help="solve random off-grid cases inside the sweep's envelope (held-out set; resumable)")
@@ -150,7 +153,7 @@ def _design(args) -> int:
     sensitivities = (not args.held_out) if args.sensitivities is None else args.sensitivities
     summary = run_design(load_scene(args.scene), args.out, n=args.n, seed=args.seed, sensitivities=sensitivities,
                          sensitivity_every=args.sensitivity_every, held_out=args.held_out, mesh=args.mesh,
-                         workers=args.workers, scheduler=args.scheduler)
+                         workers=args.workers, scheduler=args.scheduler, step_mm=args.push_step)
     print(f"{args.out}: {summary['finished']}/{summary['points']} points finished, {summary['snapshots']}/"
           f"{summary['expected']} snapshots, {summary['seconds']:.0f} s this run")
     for where, errors in summary["stopped"].items():

@@ -75,14 +75,15 @@ def held_out_points(n: int, box: dict[str, tuple[float, float]], angle_deg: floa
     return np.column_stack([np.full(len(theta), angle_deg), theta])
 
 
-def design_scene(scene: Scene, point: DesignPoint, *, sensitivities: bool) -> Scene:
-    """The scene at the point's stiffnesses, swept at (-beta, beta) (one angle at beta 0); with `sensitivities`
-    it keeps [materials], so every snapshot holds S_i at this point."""
+def design_scene(scene: Scene, point: DesignPoint, *, sensitivities: bool, step_mm: float | None = None) -> Scene:
+    """The scene at the point's stiffnesses, swept at (-beta, beta) (one angle at beta 0) in pushes of `step_mm`
+    (default: the scene's); with `sensitivities` it keeps [materials], so every snapshot holds S_i at this point."""
     tissues = tuple(point.theta)
     at = scaled_scene(scene, tissues, np.array([point.theta[t] for t in tissues]))
     b = point.angle_deg
     sweep = at.sweep.model_copy(update={"angle_min_deg": -b, "angle_max_deg": b,
-                                        "angle_step_deg": 2 * b if b > 0 else 1.0})
+                                        "angle_step_deg": 2 * b if b > 0 else 1.0,
+                                        "displacement_step_mm": step_mm or at.sweep.displacement_step_mm})
     materials = None
     if sensitivities:  # the ranges as the base scene's, widened to hold a corner's E that rounding put just outside
         materials = {t: m.model_copy(update={"youngs_kpa_range": (min(m.youngs_kpa_range[0], at.tissues[t].youngs),
@@ -92,7 +93,11 @@ def design_scene(scene: Scene, point: DesignPoint, *, sensitivities: bool) -> Sc
 
 
 def make_design(scene: Scene, *, n: int, seed: int, sensitivities: bool, held_out: bool,
-                sensitivity_every: int = 4) -> Design:
+                sensitivity_every: int = 4, step_mm: float | None = None) -> Design:
+    if step_mm is not None:
+        top = scene.sweep.displacement_max_mm
+        if not 0 < step_mm <= top or abs(top / step_mm - round(top / step_mm)) > 1e-9:
+            raise SceneError(f"--push-step: {step_mm:g} mm does not divide the largest push {top:g} mm")
     box = log_box(scene)
     beta_max = float(max(abs(scene.sweep.angle_min_deg), abs(scene.sweep.angle_max_deg)))
     rows = held_out_points(n, box, beta_max, seed) if held_out else sobol_points(n, box, beta_max, seed)
@@ -100,7 +105,8 @@ def make_design(scene: Scene, *, n: int, seed: int, sensitivities: bool, held_ou
                           theta={t: round(float(v), 9) for t, v in zip(box, r[1:])}) for k, r in enumerate(rows)]
     return Design(scene_name=scene.name, scene_sha256=scene.sha256(), kind="held_out" if held_out else "sobol",
                   seed=seed, sensitivities=sensitivities, sensitivity_every=sensitivity_every, angle_max_deg=beta_max,
-                  tissues=list(box), log_box=box, points=points, scene=scene.model_dump(mode="json"))
+                  tissues=list(box), log_box=box, points=points, scene=scene.model_dump(mode="json"),
+                  displacement_step_mm=step_mm)
 
 
 def open_design(scene: Scene, out: Path, design: Design) -> Design:
@@ -133,14 +139,15 @@ def _shared_mesh(scene: Scene, out: Path, mesh: Path | None) -> TetMesh:
 
 def run_design(scene: Scene, out: str | Path, *, n: int = 64, seed: int = 0, sensitivities: bool = True,
                sensitivity_every: int = 4, held_out: bool = False, mesh: Path | None = None, workers: int = 2,
-               scheduler: str | None = None) -> dict:
+               scheduler: str | None = None, step_mm: float | None = None) -> dict:
     """Solve every point of the design not finished in `out`; return a summary (points done, paths stopped,
     seconds, snapshots)."""
     from tqdm import tqdm
 
     out = Path(out)
     design = open_design(scene, out, make_design(scene, n=n, seed=seed, sensitivities=sensitivities,
-                                                     held_out=held_out, sensitivity_every=sensitivity_every))
+                                                     held_out=held_out, sensitivity_every=sensitivity_every,
+                                                     step_mm=step_mm))
     _shared_mesh(scene, out, mesh)
     jobs, folders = [], []
     for point in design.points:
@@ -148,7 +155,7 @@ def run_design(scene: Scene, out: str | Path, *, n: int = 64, seed: int = 0, sen
         if not (sub / folder.MESH_FILE).exists():
             sub.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(out / folder.MESH_FILE, sub / folder.MESH_FILE)
-        at = design_scene(scene, point, sensitivities=design.sensitivities)
+        at = design_scene(scene, point, sensitivities=design.sensitivities, step_mm=design.displacement_step_mm)
         point_mesh = prepare(at, sub)
         paths = grid(at)
         write_manifest(at, point_mesh, sub, paths, seconds=0.0, errors=[])

@@ -67,6 +67,21 @@ def test_a_design_resumes_and_refuses_another(box_scene, tmp_path):
     assert other.returncode == 2 and "holds another design" in other.stderr
 
 
+def test_a_finer_push_step_gives_more_snapshots_and_the_same_equilibrium(box_scene, tmp_path):
+    """--push-step is recorded in design.json and sets every path's step; the equilibrium at the largest push does
+    not depend on the path that reached it."""
+    coarse, fine = tmp_path / "coarse", tmp_path / "fine"
+    assert cli("design", "--scene", box_scene, "--out", coarse, "--n", "1", "--workers", "1").returncode == 0
+    done = cli("design", "--scene", box_scene, "--out", fine, "--n", "1", "--workers", "1", "--push-step", "1")
+    assert done.returncode == 0, done.stderr
+    assert read_design_file(fine).displacement_step_mm == 1.0 and read_design_file(coarse).displacement_step_mm is None
+    a, b = read_design(coarse), read_design(fine)
+    assert sorted(set(b.inputs[:, 0])) == [1.0, 2.0] and len(b.inputs) == 2 * len(a.inputs)
+    for angle in set(a.inputs[:, 1]):
+        last = lambda d: d.displacement[(d.inputs[:, 0] == 2.0) & (d.inputs[:, 1] == angle)][0]  # noqa: E731
+        np.testing.assert_allclose(last(b), last(a), atol=1e-6 * np.abs(last(a)).max())
+
+
 def test_the_design_cli_names_the_bad_field(box_scene, tmp_path):
     plain = scene_file(tmp_path, "plain", LINEAR)
     assert "[materials]" in cli("design", "--scene", plain, "--out", tmp_path / "x").stderr
@@ -74,6 +89,8 @@ def test_the_design_cli_names_the_bad_field(box_scene, tmp_path):
     assert bad.returncode == 2 and "--scheduler" in bad.stderr
     nomesh = cli("design", "--scene", box_scene, "--out", tmp_path / "z", "--mesh", tmp_path / "none.npz")
     assert nomesh.returncode == 2 and "--mesh" in nomesh.stderr
+    step = cli("design", "--scene", box_scene, "--out", tmp_path / "w", "--push-step", "0.3")
+    assert step.returncode == 2 and "--push-step" in step.stderr and "does not divide" in step.stderr
 
 
 def _free_port() -> int:
