@@ -265,47 +265,57 @@ def single_threaded_pool(workers: int) -> ProcessPoolExecutor:
 def run_jobs(jobs, *, workers: int, scheduler: str | None, progress,
              sensitivity_every: int = 1) -> dict[str, list[str]]:
     """Solve the pending paths of every (scene, folder, paths) job on one local process pool or a Dask cluster,
-    then reflect each mirrored folder's beta < 0 paths; progress from the files written. Returns each folder's
-    errors (paths that stopped) by str(folder)."""
-    submitted, mirrors = [], []
+    reflecting each mirrored folder's beta > 0 paths into their beta < 0 twins as each path finishes (so a run that
+    is stopped keeps usable folders); progress from the files written. Returns each folder's errors (paths that
+    stopped) by str(folder)."""
+    submitted, mirrors = [], {}
     for scene, out, paths in jobs:
         out = Path(out)
         image, twins = _mirror_pairs(scene, read_mesh(out / folder.MESH_FILE), paths)
-        # a beta < 0 path is solved only if its twin is not; otherwise it is reflected afterwards
+        # a beta < 0 path is solved only if its twin is not; otherwise it is reflected
         pending = [p for i, p in enumerate(paths) if i not in twins and not all((out / c.file).exists() for c in p)]
         submitted += [(scene.model_dump_json(), str(out), p, sensitivity_every) for p in pending]
         if twins:
-            mirrors.append((out, paths, twins, image))
+            mirrors[str(out)] = (out, paths, twins, image)
+    mirror = lambda out: _write_mirrored(*mirrors[out]) if out in mirrors else 0  # noqa: E731
+    for out in mirrors:  # what an earlier run finished
+        progress.update(mirror(out))
     errors: dict[str, list[str]] = {str(Path(out)): [] for _, out, _ in jobs}
     if submitted:
-        for out, error in _run_pool(submitted, workers, scheduler, progress, [Path(o) for _, o, _ in jobs]):
+        stops = _run_pool(submitted, workers, scheduler, progress, [Path(o) for _, o, _ in jobs],
+                          on_done=lambda job: mirror(job[1]))
+        for out, error in stops:
             errors[out].append(error)
-    for out, paths, twins, image in mirrors:
-        progress.update(_write_mirrored(out, paths, twins, image))
+    for out in mirrors:  # what a stopped path wrote
+        progress.update(mirror(out))
     return errors
 
 
-def _run_pool(submitted, workers: int, scheduler: str | None, progress, folders: list[Path]) -> list[tuple[str, str]]:
-    """Run (scene_json, folder, path) on a local process pool or a Dask cluster; (folder, error) of each stop."""
+def _run_pool(submitted, workers: int, scheduler: str | None, progress, folders: list[Path],
+              on_done=lambda job: None) -> list[tuple[str, str]]:
+    """Run (scene_json, folder, path) on a local process pool or a Dask cluster, calling `on_done(job)` as each
+    ends; (folder, error) of each stop."""
     if scheduler:
         from distributed import Client
 
         client = Client(scheduler)
         futures = [client.submit(run_path, *job, pure=False) for job in submitted]
-        done = lambda: all(f.done() for f in futures)  # noqa: E731
         results = lambda: client.gather(futures)  # noqa: E731
         closer = client.close
     else:
         pool = single_threaded_pool(workers)
         futures = [pool.submit(run_path, *job) for job in submitted]
-        done = lambda: all(f.done() for f in futures)  # noqa: E731
         results = lambda: [f.result() for f in futures]  # noqa: E731
         closer = pool.shutdown
     count = lambda: sum(_count(f) for f in folders)  # noqa: E731
-    start = count()
+    start, ended = count(), set()
     try:
-        while not done():
+        while len(ended) < len(futures):
             time.sleep(0.5)
+            for i, f in enumerate(futures):
+                if i not in ended and f.done():
+                    ended.add(i)
+                    on_done(submitted[i])
             progress.update(count() - start - progress.n + progress.initial)
         return [(job[1], r["error"]) for job, r in zip(submitted, results()) if "error" in r]
     finally:

@@ -61,8 +61,13 @@ def test_a_design_resumes_and_refuses_another(box_scene, tmp_path):
     for k in range(2):  # each point's path at -beta is its path at +beta (the mirror)
         angles = data.inputs[data.point == k, 1]
         assert sorted(angles) == sorted(-angles) and angles.max() > 0
+    mirrored = [f for f in out.glob("p*/snapshots/*.npz") if "mirrored_from" in np.load(f).files]
+    assert len(mirrored) == 2
+    for f in mirrored:  # as a run stopped before reflecting them left them
+        f.unlink()
     again = cli("design", "--scene", box_scene, "--out", out, "--n", "2", "--workers", "1")
-    assert again.returncode == 0 and "4/4 snapshots" in again.stdout
+    assert again.returncode == 0 and "4/4 snapshots" in again.stdout, again.stdout
+    assert all(f.exists() for f in mirrored)  # reflected on resume, nothing solved again
     other = cli("design", "--scene", box_scene, "--out", out, "--n", "3")
     assert other.returncode == 2 and "holds another design" in other.stderr
 
