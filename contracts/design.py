@@ -72,10 +72,15 @@ class DesignData:
     unfinished: list[str]  # points whose paths stopped short (what they wrote is included)
 
 
-def read_design(folder: str | Path) -> DesignData:
-    """The snapshots on disk of every point of a design (a stopped path contributes what it wrote)."""
+def read_design(folder: str | Path, points: int | None = None) -> DesignData:
+    """The snapshots on disk of every point of a design, or of its first `points` (a Sobol sequence's first 2^k
+    are a design of their own); a stopped path contributes what it wrote."""
     folder = Path(folder)
     design = read_design_file(folder)
+    if points is not None:
+        if not 1 <= points <= len(design.points):
+            raise ValueError(f"points: the design has {len(design.points)} points, asked for the first {points}")
+        design = design.model_copy(update={"points": design.points[:points]})
     mesh = read_mesh(folder / MESH_FILE)
     if design.scene is None:
         raise ValueError(f"{folder}: {DESIGN_FILE} records no base scene; rerun the `fem_offline design` command once")

@@ -29,6 +29,19 @@ def _case(text: str) -> tuple[float, float]:
     return d, a
 
 
+def _network_flags(p: argparse.ArgumentParser, *, sensitivity_minimum: int) -> None:
+    """The PCA and network flags `fit` and `fit-design` share."""
+    p.add_argument("--rank", type=number("--rank", int, minimum=1), default=16,
+                   help="u / d's PCA modes (default 16, the paper's)")
+    p.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=sensitivity_minimum),
+                   default=32, help="extra modes for what u's leave of the sensitivities S_i / d (default 32)")
+    p.add_argument("--width", type=number("--width", int, minimum=1), default=60,
+                   help="hidden units per layer (default 60)")
+    p.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000,
+                   help="L-BFGS iterations (default 1000)")
+    p.add_argument("--seed", type=number("--seed", int), default=0)
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m training", description=__doc__)
     ap.add_argument("-v", "--verbose", action="store_true")
@@ -40,16 +53,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--fe-error", type=Path, help="a grid-convergence study of this mesh "
                    "(docs/results/convergence_taylor_hood.json): the FE discretisation error, added to the surrogate's "
                    "for the end-to-end bound")
-    f.add_argument("--rank", type=number("--rank", int, minimum=1), default=16,
-                   help="PCA modes (default 16, the paper's)")
-    f.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=1), default=32,
-                   help="a material sweep's extra modes for the sensitivities, beyond --rank's for u (default 32)")
-    f.add_argument("--width", type=number("--width", int, minimum=1), default=60,
-                   help="hidden units per layer (default 60)")
+    _network_flags(f, sensitivity_minimum=1)
     f.add_argument("--depth", type=number("--depth", int, minimum=1), default=1, help="hidden layers (default 1)")
-    f.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000,
-                   help="L-BFGS iterations (default 1000)")
-    f.add_argument("--seed", type=number("--seed", int), default=0)
     f.add_argument("--test-case", type=_case, action="append",
                    help="held-out snapshot D/A (repeatable; default: the paper's five)")
     r = sub.add_parser("restamp",
@@ -68,13 +73,10 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--out", required=True, type=Path, help="model folder to write, e.g. models/default")
     e.add_argument("--held-out", type=Path,
                    help="a `fem_offline design --held-out` folder on the same mesh to check against")
-    e.add_argument("--rank", type=number("--rank", int, minimum=1), default=16, help="u / d's PCA modes (default 16)")
-    e.add_argument("--sensitivity-rank", type=number("--sensitivity-rank", int, minimum=0), default=32,
-                   help="extra modes for what u's leave of the S_i / d (default 32)")
-    e.add_argument("--width", type=number("--width", int, minimum=1), default=60, help="hidden units (default 60)")
-    e.add_argument("--iterations", type=number("--iterations", int, minimum=1), default=1000,
-                   help="L-BFGS iterations (default 1000)")
-    e.add_argument("--seed", type=number("--seed", int), default=0)
+    _network_flags(e, sensitivity_minimum=0)
+    e.add_argument("--points", type=number("--points", int, minimum=1),
+                   help="fit on the design's first N points only (default all; a Sobol design's first 2^k are a "
+                        "design of their own): what fewer FE paths cost in accuracy")
     g = sub.add_parser("regraph", help="rebuild a material model's ONNX graph from its own weights with today's graph "
                        "builder, without refitting (refused unless both graphs answer the same)")
     g.add_argument("--model", required=True, type=Path, help="the model folder, e.g. models/default")
@@ -135,7 +137,7 @@ def _fit_design(args) -> int:
     options = FitOptions(rank=args.rank, sensitivity_rank=args.sensitivity_rank, width=args.width, depth=1,
                          max_iterations=args.iterations, seed=args.seed, test_cases=())
     try:
-        manifest = fit_design(args.design, args.out, options, held_out=args.held_out)
+        manifest = fit_design(args.design, args.out, options, held_out=args.held_out, points=args.points)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

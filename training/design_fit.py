@@ -105,13 +105,13 @@ def held_out_errors(session, data: DesignData, node_sets: dict) -> dict:
 
 
 def fit_design(design: Path, out: Path, options: FitOptions, *, held_out: Path | None = None,
-               progress: bool = True) -> folder.ModelManifest:
-    """Fit on `design`, check against `held_out` (a `fem_offline design --held-out` folder on the same mesh), and
-    write the model folder `out`."""
+               progress: bool = True, points: int | None = None) -> folder.ModelManifest:
+    """Fit on `design` (its first `points` points, default all), check against `held_out` (a `fem_offline design
+    --held-out` folder on the same mesh), and write the model folder `out`."""
     from tqdm import tqdm
 
     t_start = time.perf_counter()
-    data = read_design(design)
+    data = read_design(design, points)
     if data.unfinished:
         log.warning("%d design points are unfinished (what they wrote is used): %s", len(data.unfinished),
                     ", ".join(data.unfinished))

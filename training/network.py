@@ -56,6 +56,44 @@ def _output_layer(features: torch.Tensor, targets: torch.Tensor) -> torch.Tensor
     return torch.linalg.solve(a + ridge, h.T @ targets), h
 
 
+def lbfgs_with_restarts(parameters, loss_fn, max_iterations: int, progress=None) -> tuple[int, int]:
+    """Minimise loss_fn() (a scalar tensor) over `parameters` with L-BFGS for at most `max_iterations` iterations;
+    returns (iterations, restarts).
+
+    L-BFGS stops before its budget when a step changes the loss by less than tolerance_change or the line search
+    fails, which on these tiny losses depends on rounding (the thread count). So an early stop restarts it with a
+    fresh history; only a restart that gains nothing ends training."""
+    parameters = list(parameters)
+
+    def optimiser():
+        return torch.optim.LBFGS(parameters, lr=1.0, max_iter=50, history_size=50,
+                                 tolerance_grad=1e-14, tolerance_change=1e-16, line_search_fn="strong_wolfe")
+
+    opt = optimiser()
+
+    def closure():
+        opt.zero_grad()
+        loss = loss_fn()
+        loss.backward()
+        return loss
+
+    done, start, restarts, last = 0, 0, 0, None
+    while done < max_iterations:
+        cap = opt.param_groups[0]["max_iter"] = min(opt.defaults["max_iter"], max_iterations - done)  # the budget holds
+        opt.step(closure)
+        n = opt.state[opt._params[0]]["n_iter"] - (done - start)
+        done += n
+        if progress:
+            progress(n)
+        if n < cap:
+            with torch.no_grad():
+                now = float(loss_fn())
+            if last is not None and now >= last * (1 - 1e-6):
+                break  # a fresh start gained nothing: converged
+            last, restarts, start, opt = now, restarts + 1, done, optimiser()
+    return int(done), restarts
+
+
 def train(
     inputs: np.ndarray,
     coefficients: np.ndarray,
@@ -84,41 +122,13 @@ def train(
     net = Mlp(coefficients.shape[1], width, depth).double()
     hidden = net.layers[:-1]
 
-    def optimiser():
-        return torch.optim.LBFGS(hidden.parameters(), lr=1.0, max_iter=50, history_size=50,
-                                 tolerance_grad=1e-14, tolerance_change=1e-16, line_search_fn="strong_wolfe")
-
-    opt = optimiser()
     t0 = time.perf_counter()
 
-    def closure():
-        opt.zero_grad()
+    def loss_fn() -> torch.Tensor:
         w, h = _output_layer(hidden(x), y)
-        loss = ((h @ w - y) ** 2).sum(dim=1).mean()
-        loss.backward()
-        return loss
+        return ((h @ w - y) ** 2).sum(dim=1).mean()
 
-    def reduced_loss() -> float:
-        with torch.no_grad():
-            w, h = _output_layer(hidden(x), y)
-            return float(((h @ w - y) ** 2).sum(dim=1).mean())
-
-    # L-BFGS stops before its budget when a step changes the loss by less than tolerance_change or
-    # the line search fails, which on these tiny losses depends on rounding (the thread count). So
-    # an early stop restarts it with a fresh history; only a restart that gains nothing ends training.
-    done, start, restarts, last = 0, 0, 0, None
-    while done < max_iterations:
-        cap = opt.param_groups[0]["max_iter"] = min(opt.defaults["max_iter"], max_iterations - done)  # the budget holds
-        opt.step(closure)
-        n = opt.state[opt._params[0]]["n_iter"] - (done - start)
-        done += n
-        if progress:
-            progress(n)
-        if n < cap:
-            loss_now = reduced_loss()
-            if last is not None and loss_now >= last * (1 - 1e-6):
-                break  # a fresh start gained nothing: converged
-            last, restarts, start, opt = loss_now, restarts + 1, done, optimiser()
+    done, restarts = lbfgs_with_restarts(hidden.parameters(), loss_fn, max_iterations, progress)
     with torch.no_grad():
         w, h = _output_layer(hidden(x), y)
         loss = float(((h @ w - y) ** 2).sum(dim=1).mean())

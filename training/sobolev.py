@@ -24,7 +24,7 @@ import time
 import numpy as np
 import torch
 
-from .network import Mlp, Scaling
+from .network import Mlp, Scaling, lbfgs_with_restarts
 
 log = logging.getLogger(__name__)
 
@@ -82,32 +82,8 @@ def train_sobolev(inputs: np.ndarray, coefficients: np.ndarray, *, grad_rows: np
         h, dh = _features(hidden, x, rows, grad_columns)
         return _loss(h, dh, y, dy, weights, _solve(h, dh, y, dy, weights))
 
-    def optimiser():
-        return torch.optim.LBFGS(hidden.parameters(), lr=1.0, max_iter=50, history_size=50,
-                                 tolerance_grad=1e-14, tolerance_change=1e-16, line_search_fn="strong_wolfe")
-
-    opt, t0 = optimiser(), time.perf_counter()
-
-    def closure():
-        opt.zero_grad()
-        loss = reduced()
-        loss.backward()
-        return loss
-
-    done, start, restarts, last = 0, 0, 0, None
-    while done < max_iterations:  # restarts as network.train does: an early stop is rounding, not convergence
-        cap = opt.param_groups[0]["max_iter"] = min(opt.defaults["max_iter"], max_iterations - done)
-        opt.step(closure)
-        n = opt.state[opt._params[0]]["n_iter"] - (done - start)
-        done += n
-        if progress:
-            progress(n)
-        if n < cap:
-            with torch.no_grad():
-                now = float(reduced())
-            if last is not None and now >= last * (1 - 1e-6):
-                break
-            last, restarts, start, opt = now, restarts + 1, done, optimiser()
+    t0 = time.perf_counter()
+    done, restarts = lbfgs_with_restarts(hidden.parameters(), reduced, max_iterations, progress)
     with torch.no_grad():
         h, dh = _features(hidden, x, rows, grad_columns)
         w2 = _solve(h, dh, y, dy, weights)

@@ -82,9 +82,12 @@ def test_a_finer_push_step_gives_more_snapshots_and_the_same_equilibrium(box_sce
     assert read_design_file(fine).displacement_step_mm == 1.0 and read_design_file(coarse).displacement_step_mm is None
     a, b = read_design(coarse), read_design(fine)
     assert sorted(set(b.inputs[:, 0])) == [1.0, 2.0] and len(b.inputs) == 2 * len(a.inputs)
+
+    def last(d, angle):
+        return d.displacement[(d.inputs[:, 0] == 2.0) & (d.inputs[:, 1] == angle)][0]
+
     for angle in set(a.inputs[:, 1]):
-        last = lambda d: d.displacement[(d.inputs[:, 0] == 2.0) & (d.inputs[:, 1] == angle)][0]  # noqa: E731
-        np.testing.assert_allclose(last(b), last(a), atol=1e-6 * np.abs(last(a)).max())
+        np.testing.assert_allclose(last(b, angle), last(a, angle), atol=1e-6 * np.abs(last(a, angle)).max())
 
 
 def test_the_design_cli_names_the_bad_field(box_scene, tmp_path):
