@@ -164,9 +164,15 @@ def run_design(scene: Scene, out: str | Path, *, n: int = 64, seed: int = 0, sen
     total = sum(len(p) for _, _, paths in jobs for p in paths)
     done = sum((sub / c.file).exists() for _, sub, paths in jobs for p in paths for c in p)
     t0 = time.perf_counter()
+    by_folder = {str(sub): (at, point_mesh, sub, paths) for at, point_mesh, sub, paths in folders}
+
+    def path_done(sub: str) -> None:  # the point's manifest lists what is on disk now: a stopped run loses nothing
+        at, point_mesh, sub_, paths = by_folder[sub]
+        write_manifest(at, point_mesh, sub_, paths, seconds=time.perf_counter() - t0, errors=[])
+
     with tqdm(total=total, initial=done, unit="snap", desc=f"design {out.name}") as progress:
         errors = run_jobs(jobs, workers=workers, scheduler=scheduler, progress=progress,
-                          sensitivity_every=design.sensitivity_every)
+                          sensitivity_every=design.sensitivity_every, on_path_done=path_done)
     seconds = time.perf_counter() - t0
     for at, point_mesh, sub, paths in folders:
         write_manifest(at, point_mesh, sub, paths, seconds=seconds, errors=errors.get(str(sub), []))

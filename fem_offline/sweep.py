@@ -262,12 +262,12 @@ def single_threaded_pool(workers: int) -> ProcessPoolExecutor:
             os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
 
 
-def run_jobs(jobs, *, workers: int, scheduler: str | None, progress,
-             sensitivity_every: int = 1) -> dict[str, list[str]]:
+def run_jobs(jobs, *, workers: int, scheduler: str | None, progress, sensitivity_every: int = 1,
+             on_path_done=lambda out: None) -> dict[str, list[str]]:
     """Solve the pending paths of every (scene, folder, paths) job on one local process pool or a Dask cluster,
-    reflecting each mirrored folder's beta > 0 paths into their beta < 0 twins as each path finishes (so a run that
-    is stopped keeps usable folders); progress from the files written. Returns each folder's errors (paths that
-    stopped) by str(folder)."""
+    reflecting each mirrored folder's beta > 0 paths into their beta < 0 twins as each path finishes, then calling
+    `on_path_done(str(folder))` (a caller rewrites the folder's manifest there, so a run that is stopped leaves usable
+    folders); progress from the files written. Returns each folder's errors (paths that stopped) by str(folder)."""
     submitted, mirrors = [], {}
     for scene, out, paths in jobs:
         out = Path(out)
@@ -279,11 +279,13 @@ def run_jobs(jobs, *, workers: int, scheduler: str | None, progress,
             mirrors[str(out)] = (out, paths, twins, image)
     mirror = lambda out: _write_mirrored(*mirrors[out]) if out in mirrors else 0  # noqa: E731
     for out in mirrors:  # what an earlier run finished
-        progress.update(mirror(out))
+        if written := mirror(out):
+            progress.update(written)
+            on_path_done(out)
     errors: dict[str, list[str]] = {str(Path(out)): [] for _, out, _ in jobs}
     if submitted:
         stops = _run_pool(submitted, workers, scheduler, progress, [Path(o) for _, o, _ in jobs],
-                          on_done=lambda job: mirror(job[1]))
+                          on_done=lambda job: (mirror(job[1]), on_path_done(job[1])))
         for out, error in stops:
             errors[out].append(error)
     for out in mirrors:  # what a stopped path wrote
