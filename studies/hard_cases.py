@@ -283,6 +283,65 @@ def gci_markdown(gci: dict, element: str) -> str:
     return "\n".join(lines)
 
 
+FAT_BANDS_MM = (0.0, 4.0, 6.0, 8.0, 10.0, 14.0)  # distance from the guide's axis
+
+
+def fat_between_wall_and_gland(mesh, guide, *, reach_mm: float = 14.0, spacing_mm: float = 1.0,
+                               sample_mm: float = 0.01) -> dict:
+    """The fat between the rectal wall and the prostate in front of the tip: along lines parallel to the guide's axis
+    on a grid around it (spacing_mm, out to reach_mm), each run of adipose that has rectal wall before it and prostate
+    after it: its thickness (mm) and the distinct tets it crosses, summarised per band of distance from the axis."""
+    from contracts.interpolate import PointLocator
+
+    tip, axis = np.asarray(guide.tip_mm, float), np.asarray(guide.axis, float)
+    a = np.cross(axis, guide.tilt_normal)
+    a /= np.linalg.norm(a)
+    b = np.cross(axis, a)
+    locator = PointLocator(mesh.nodes, mesh.tets[:, :4])
+    s = np.arange(-8.0, 30.0, sample_mm)
+    runs = []  # (distance from the axis, tets crossed, thickness)
+    grid = np.arange(-reach_mm, reach_mm + 1e-9, spacing_mm)
+    for x, y in itertools.product(grid, grid):
+        if np.hypot(x, y) > reach_mm:
+            continue
+        tet, _ = locator.locate(tip + x * a + y * b + s[:, None] * axis)
+        tissue = np.where(tet >= 0, mesh.tissue[np.maximum(tet, 0)], -1)
+        edges = np.flatnonzero(np.diff(tissue)) + 1
+        starts, ends = np.r_[0, edges], np.r_[edges, len(s)]
+        names = [mesh.tissue_names[t] if t >= 0 else "" for t in tissue[starts]]
+        for k in range(1, len(starts) - 1):
+            if names[k - 1:k + 2] == ["rectal_wall", "adipose", "prostate"]:
+                runs.append((float(np.hypot(x, y)), len(set(tet[starts[k]:ends[k]])),
+                             float(s[ends[k] - 1] - s[starts[k]] + sample_mm)))
+    bands = []
+    for lo, hi in zip(FAT_BANDS_MM[:-1], FAT_BANDS_MM[1:]):
+        mine = [r for r in runs if lo <= r[0] < hi]
+        row = {"from_axis_mm": [lo, hi], "lines": len(mine)}
+        if mine:
+            count, thick = np.array([r[1] for r in mine]), np.array([r[2] for r in mine])
+            row.update(tets_min=int(count.min()), tets_median=float(np.median(count)), tets_max=int(count.max()),
+                       thickness_min_mm=float(thick.min()), thickness_median_mm=float(np.median(thick)),
+                       thickness_max_mm=float(thick.max()))
+        bands.append(row)
+    return {"spacing_mm": spacing_mm, "bands": bands}
+
+
+def fat_markdown(fat: dict) -> str:
+    lines = ["## The fat between the rectal wall and the gland, in front of the tip (the served mesh)", "",
+             f"Lines parallel to the guide's axis on a {fat['spacing_mm']:g} mm grid around it; on each, the run of "
+             "adipose with rectal wall before it and prostate after it.", "",
+             "| from the axis | lines through fat | tets across: min / median / max | thickness: min / median / max |",
+             "|---|---|---|---|"]
+    for b in fat["bands"]:
+        lo, hi = b["from_axis_mm"]
+        if not b["lines"]:
+            lines.append(f"| {lo:g}-{hi:g} mm | 0 (the gland lies on the wall) | | |")
+            continue
+        lines.append(f"| {lo:g}-{hi:g} mm | {b['lines']} | {b['tets_min']} / {b['tets_median']:g} / {b['tets_max']} | "
+                     f"{b['thickness_min_mm']:.2f} / {b['thickness_median_mm']:.2f} / {b['thickness_max_mm']:.2f} mm |")
+    return "\n".join(lines)
+
+
 def collect(out: Path, elements) -> list[dict]:
     rows = []
     for element in elements:
@@ -363,6 +422,10 @@ def main(argv: list[str] | None = None) -> int:
         data["cost"] = {p.stem: json.loads(p.read_text()) for p in sorted((args.out / "cost").glob("*.json"))}
     if data.get("cost"):
         report += "\n\n" + cost_markdown(data["cost"])
+    from contracts.mesh import read_mesh
+
+    data["fat"] = fat_between_wall_and_gland(read_mesh(args.mesh), base.guide)
+    report += "\n\n" + fat_markdown(data["fat"])
     if args.gci:
         data["gci"] = run_gci(args.out, args.elements[0], list(args.gci), args.workers, args.scene)
         report += "\n\n" + gci_markdown(data["gci"], args.elements[0])
