@@ -79,3 +79,39 @@ def tiny_material_sweep(tmp_path_factory) -> Path:
 def tiny_material_model(tiny_material_sweep, tmp_path_factory) -> Path:
     """A material model on tiny_material_sweep (answers for 0..5 mm, like tiny_model)."""
     return _fitted(tiny_material_sweep, tmp_path_factory.mktemp("models") / "tiny_materials", rank=12)
+
+
+# the patient box as factors of the tiny scene's nominal E (fem_offline/scenes/patient_box.toml)
+FACTORS = {"prostate": (0.4, 1.6), "rectal_wall": (0.1, 1.2), "adipose": (0.5, 1.6), "bladder": (0.3, 3.0)}
+
+
+def tiny_box_scene():
+    from fem_offline.scene import load_scene
+
+    base = load_scene(SCENES / "tiny.toml")
+    box = {t: {"youngs_kpa_range": [base.tissues[t].youngs * a, base.tissues[t].youngs * b], "std_percent": 21.0}
+           for t, (a, b) in FACTORS.items()}
+    return load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False},
+                      sweep={"displacement_step_mm": 2.0, "displacement_max_mm": 4.0}, materials=box)
+
+
+@pytest.fixture(scope="session")
+def tiny_design(tmp_path_factory):
+    """A linear tiny design over the patient box (16 points, S_i at 4 mm) and a held-out one (the 16 corners)."""
+    from fem_offline.design import run_design
+
+    scene, root = tiny_box_scene(), tmp_path_factory.mktemp("design")
+    assert run_design(scene, root / "train", n=16, seed=0, sensitivity_every=2)["finished"] == 16
+    assert run_design(scene, root / "held", n=16, seed=1, held_out=True, sensitivities=False)["finished"] == 16
+    return root
+
+
+@pytest.fixture(scope="session")
+def design_model(tiny_design, tmp_path_factory):
+    from contracts.model import FitOptions
+    from training.design_fit import fit_design
+
+    out = tmp_path_factory.mktemp("models") / "design"
+    fit_design(tiny_design / "train", out, FitOptions(rank=10, sensitivity_rank=10, max_iterations=300, test_cases=()),
+               held_out=tiny_design / "held", progress=False)
+    return out

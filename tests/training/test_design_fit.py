@@ -9,6 +9,8 @@ from contracts.model import onnx_session
 from training.material_graph import build_material_graph, reference_decode_design
 from training.pca import Pca
 
+from tests.conftest import tiny_box_scene
+
 M = 4
 
 
@@ -77,44 +79,6 @@ def test_derivative_rows_make_the_fit_right_between_few_points():
     assert errors[True][0] < 0.5 * errors[False][0] and errors[True][1] < 0.5 * errors[False][1], errors
 
 
-# the patient box as factors of the tiny scene's nominal E (fem_offline/scenes/patient_box.toml)
-FACTORS = {"prostate": (0.4, 1.6), "rectal_wall": (0.1, 1.2), "adipose": (0.5, 1.6), "bladder": (0.3, 3.0)}
-
-
-def _tiny_box_scene():
-    from fem_offline.scene import load_scene
-
-    from tests.conftest import SCENES
-
-    base = load_scene(SCENES / "tiny.toml")
-    box = {t: {"youngs_kpa_range": [base.tissues[t].youngs * a, base.tissues[t].youngs * b], "std_percent": 21.0}
-           for t, (a, b) in FACTORS.items()}
-    return load_scene(SCENES / "tiny.toml", effects={"geometric_nonlinearity": False},
-                      sweep={"displacement_step_mm": 2.0, "displacement_max_mm": 4.0}, materials=box)
-
-
-@pytest.fixture(scope="module")
-def tiny_design(tmp_path_factory):
-    """A linear tiny design over the patient box (16 points, S_i at 4 mm) and a held-out one (the 16 corners)."""
-    from fem_offline.design import run_design
-
-    scene, root = _tiny_box_scene(), tmp_path_factory.mktemp("design")
-    assert run_design(scene, root / "train", n=16, seed=0, sensitivity_every=2)["finished"] == 16
-    assert run_design(scene, root / "held", n=16, seed=1, held_out=True, sensitivities=False)["finished"] == 16
-    return root
-
-
-@pytest.fixture(scope="module")
-def design_model(tiny_design, tmp_path_factory):
-    from contracts.model import FitOptions
-    from training.design_fit import fit_design
-
-    out = tmp_path_factory.mktemp("models") / "design"
-    fit_design(tiny_design / "train", out, FitOptions(rank=10, sensitivity_rank=10, max_iterations=300, test_cases=()),
-               held_out=tiny_design / "held", progress=False)
-    return out
-
-
 def test_a_design_model_is_right_at_the_box_corners_where_first_order_is_not(tiny_design, design_model):
     """At the 16 corners of the patient box, fresh FE that no training path used: the design model (16 points) is
     within 0.05 mm everywhere, and five times closer at the markers than first order from the nominal (u0 +
@@ -126,7 +90,7 @@ def test_a_design_model_is_right_at_the_box_corners_where_first_order_is_not(tin
 
     acc = read_model_folder(design_model).manifest.accuracy.regions
     assert acc["all_nodes"].surrogate_mm < 0.05
-    run_sweep(_tiny_box_scene(), tiny_design / "nominal")  # superposed: u0 and S_i on the (d, beta) grid
+    run_sweep(tiny_box_scene(), tiny_design / "nominal")  # superposed: u0 and S_i on the (d, beta) grid
     nominal, held = read_sweep(tiny_design / "nominal"), read_design(tiny_design / "held")
     markers = held.mesh.node_sets["markers"]
     worst = 0.0
