@@ -18,8 +18,9 @@ value must lie inside its declared range (422 naming e.g. `materials.prostate.yo
 
 Every answer of a material model carries `std_mm` (per returned point, the std of x, y and z: 1 sigma) and an
 `error_budget`: the surrogate's and the FE discretisation's bounds and the first-order material model's error
-(the manifest's accuracy, each with what it was measured against), the largest std length at the returned
-points, and total_mm = the three bounds + HALO_SIGMAS (2) x that std. Whatever draws or sends an uncertainty as a
+(`*_bound_mm`: the manifest's accuracy, the largest error measured, each with what it was measured against), the
+largest std length at the returned points (`material_std_mm_max`, 1 sigma), and total_mm = the three bounds +
+HALO_SIGMAS (2) x that std. Whatever draws or sends an uncertainty as a
 size (the viewer's halo, OpenIGTLink's point diameter) draws the same HALO_SIGMAS x std radius.
 """
 
@@ -173,8 +174,9 @@ def budget_parts(manifest: ModelManifest) -> dict[str, dict]:
     parts = {}
     for name, r in acc.regions.items():
         first = mat.regions[name].first_order_mm if mat is not None and name in mat.regions else None
-        parts[name] = {"surrogate_mm": r.surrogate_mm, "fe_discretisation_mm": r.fe_discretisation_mm,
-                       "material_first_order_mm": first}
+        # each name says what the term is: a bound (the largest error measured) or a std (1 sigma)
+        parts[name] = {"surrogate_bound_mm": r.surrogate_mm, "fe_discretisation_bound_mm": r.fe_discretisation_mm,
+                       "material_first_order_bound_mm": first}
     parts["reference"] = {
         "region": "the bounds are the manifest's for this region (all_nodes for points or all nodes)",
         "surrogate_and_fe": acc.reference,

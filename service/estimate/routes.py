@@ -106,7 +106,7 @@ def estimate_reply(closing: Closing, problem: Problem, names: list[str], fit: Es
     for ref, pos, cov in zip(problem.points.reference[problem.n_obs:], fit.targets, fit.target_covariance):
         sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
         targets.append({"reference_mm": ref.tolist(), "position_mm": pos.tolist(), "std_mm": sd.tolist(),
-                        "error_budget_mm": closing.budget_mm,
+                        "model_bound_mm": closing.budget_mm,
                         "total_mm": closing.budget_mm + 2 * float(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0)))})
     distance = np.linalg.norm(fit.predicted - problem.observed, axis=1)
     residuals = [{"observation": n, "predicted_mm": p.tolist(), "residual_mm": float(r), "normalised": float(z)}
@@ -147,7 +147,7 @@ def run_plan(closing: Closing, body: BaseModel) -> dict:
                    f"displaced lesion; the closest approach is {best.miss_mm:.2f} mm, at the pose given")
     direction = closing.guide.direction(best.angle_deg)
     return {"model": closing.name, "reachable": result.reachable, "message": message, "plan": _pose(closing, best),
-            "miss_std_mm": result.miss_std_mm, "error_budget_mm": closing.budget_mm,
+            "miss_std_mm": result.miss_std_mm, "model_bound_mm": closing.budget_mm,
             "naive": _pose(closing, result.naive), "needle_direction": direction.tolist(),
             "needle_tip_mm": (closing.guide.tip_mm + best.displacement_mm * direction).tolist()}
 

@@ -114,9 +114,9 @@ class Target(BaseModel):
     position_mm: list[float] = Field(description="displaced position at the estimated state, mm")
     std_mm: list[float] = Field(description="1-sigma of x, y, z, mm: the state's posterior and the model's own error "
                                             "at the point (half its bound against its own FE)")
-    error_budget_mm: float = Field(description="the model's bound at points (surrogate + FE discretisation, "
+    model_bound_mm: float = Field(description="the model's bound at points (surrogate + FE discretisation, "
                                                "+ the material first order for a material model), mm")
-    total_mm: float = Field(description="error_budget_mm + 2 x the largest std's length: a 2-sigma bound, mm")
+    total_mm: float = Field(description="model_bound_mm + 2 x the largest std's length: a 2-sigma bound, mm")
 
 
 class Fit(BaseModel):
@@ -163,7 +163,7 @@ class PlanReply(BaseModel):
     message: str
     plan: Pose = Field(description="the pose whose needle path passes closest (when unreachable: the closest approach)")
     miss_std_mm: float = Field(description="1-sigma of the miss from the stiffnesses' std (0 without material inputs)")
-    error_budget_mm: float = Field(description="the model's bound at points, mm, on top of miss_std_mm")
+    model_bound_mm: float = Field(description="the model's bound at points, mm, on top of miss_std_mm")
     naive: Pose = Field(description="aiming at the undisplaced lesion with the same push")
     needle_tip_mm: list[float] = Field(description="the guide tip after the push: where the needle path starts")
     needle_direction: list[float] = Field(description="unit direction of the needle path")

@@ -141,7 +141,7 @@ def plan_messages(reply: dict, *, name: str, timestamp) -> list:
         diameters=[DIAMETER_PER_STD * reply["miss_std_mm"], 0.0], device_name=PLANNED_MISS_NAME, timestamp=timestamp))
     report = {"lesion": name, "reachable": reply["reachable"], "message": reply["message"],
               **{k: plan[k] for k in ("displacement_mm", "angle_deg", "miss_mm", "depth_mm")},
-              "miss_std_mm": reply["miss_std_mm"], "error_budget_mm": reply["error_budget_mm"],
+              "miss_std_mm": reply["miss_std_mm"], "model_bound_mm": reply["model_bound_mm"],
               "naive": {k: reply["naive"][k] for k in ("displacement_mm", "angle_deg", "miss_mm")}}
     out.append(pyigtl.StringMessage(json.dumps(report), device_name=PLAN_REPORT_NAME, timestamp=timestamp))
     return out

@@ -276,7 +276,8 @@ def test_the_error_budget_names_its_terms_and_adds_them_up(mat_client):
     b = reply["error_budget"]
     std_max = np.linalg.norm(np.asarray(reply["std_mm"]), axis=1).max()
     assert b["region"] == "markers" and b["material_std_mm_max"] == pytest.approx(std_max, rel=1e-6)
-    known = [b[k] for k in ("surrogate_mm", "fe_discretisation_mm", "material_first_order_mm") if b[k] is not None]
+    bounds = ("surrogate_bound_mm", "fe_discretisation_bound_mm", "material_first_order_bound_mm")
+    known = [b[k] for k in bounds if b[k] is not None]
     assert b["total_mm"] == pytest.approx(sum(known) + 2 * std_max)
     assert set(b["measured_against"]) >= {"surrogate_and_fe", "material_first_order", "material_std", "total"}
 
