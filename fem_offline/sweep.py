@@ -310,7 +310,7 @@ def _run_pool(submitted, workers: int, scheduler: str | None, progress, folders:
         results = lambda: [f.result() for f in futures]  # noqa: E731
         closer = pool.shutdown
     count = lambda: sum(_count(f) for f in folders)  # noqa: E731
-    start, ended = count(), set()
+    start, base, ended = count(), progress.n, set()  # the bar counts on from where it stands
     try:
         while len(ended) < len(futures):
             time.sleep(0.5)
@@ -318,10 +318,10 @@ def _run_pool(submitted, workers: int, scheduler: str | None, progress, folders:
                 if i not in ended and f.done():
                     ended.add(i)
                     on_done(submitted[i])
-            progress.update(count() - start - progress.n + progress.initial)
+            progress.update(base + count() - start - progress.n)
         return [(job[1], r["error"]) for job, r in zip(submitted, results()) if "error" in r]
     finally:
-        progress.update(count() - start - progress.n + progress.initial)
+        progress.update(base + count() - start - progress.n)
         closer()
 
 
