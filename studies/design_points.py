@@ -75,7 +75,8 @@ def fit_one(design: Path, held_out: Path, n: int, out: Path, options) -> dict:
     return {"points": n, "snapshots": manifest.network.n_train, "fit_seconds": seconds,
             "train_seconds": manifest.timing.train_seconds, "iterations": manifest.network.iterations,
             "rank": manifest.pca.rank, "regions": {k: checked["regions"][k] for k in REGIONS},
-            "held_out_points": checked["n_points"], "held_out_snapshots": checked["n_snapshots"]}
+            "held_out_points": checked["n_points"], "held_out_snapshots": checked["n_snapshots"],
+            "held_out_unfinished": checked["unfinished"]}
 
 
 def run(design: Path, held_out: Path, points: list[int], options, *, workers: int, idle_gap_s: float,
@@ -132,7 +133,10 @@ def report(data: dict) -> str:
              f"The first N points of `{data['design']}` ({data['finished_points']} of {data['design_points']} "
              f"finished), each fit against `{data['held_out']}`: {rows[0]['held_out_points']} held-out material points "
              f"(the box's corners first) at beta +-10 deg, every push ({rows[0]['held_out_snapshots']} snapshots). "
-             "Errors are the largest nodal error, the surrogate against its own FE on the same mesh.", "",
+             "Errors are the largest nodal error, the surrogate against its own FE on the same mesh."
+             + (f" Held-out points whose path stopped short of the largest push (what they reached counts under "
+                f"every push): {', '.join(rows[0]['held_out_unfinished'])}." if rows[0]["held_out_unfinished"] else ""),
+             "",
              "| points | snapshots | markers, largest push | prostate surface, largest push | every node, largest "
              "push | markers, every push | FE build | fit |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
