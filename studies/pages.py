@@ -22,6 +22,7 @@ BENCH_SERVICE = "bench_service"
 CODE_OF = (("bench_service", ("service", "models/default")),
            ("fe_error", ("fem_offline", "training", "models/default")),
            ("tradeoff", ("fem_offline", "training")), ("sweep_density", ("fem_offline", "training")),
+           ("design", ("fem_offline", "training")),
            ("", ("fem_offline",)))
 REGIONS = (("markers", "markers"), ("interior", "interior points"), ("prostate_surface", "prostate surface"),
            ("all_nodes", "every node"))
