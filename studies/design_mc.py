@@ -26,8 +26,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -117,13 +115,18 @@ def run(model: Path, *, n: int, seed: int, out: Path, workers: int, solve_missin
                 jobs[(name, d, beta, k)] = (out / f"p{p}_{d:g}_{beta:g}_{seed}_{k:03d}.npz", [d, beta, *theta])
         jobs[(name, "centre")] = (centre, refused, thetas)
     draws_todo = [(key, v) for key, v in jobs.items() if key[1] != "centre"]
-    os.environ.setdefault("MKL_NUM_THREADS", "1")
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {key: pool.submit(_solve_draw, str(model), str(path), state, solve_missing)
-                   for key, (path, state) in draws_todo}
-        from tqdm import tqdm
+    from tqdm import tqdm
 
-        solved_u = {key: f.result() for key, f in tqdm(futures.items(), desc="draws", unit="solve")}
+    if workers == 1:  # in this process
+        solved_u = {key: _solve_draw(str(model), str(path), state, solve_missing)
+                    for key, (path, state) in tqdm(draws_todo, desc="draws", unit="solve")}
+    else:  # spawned, one thread each: a forked child of a process running onnxruntime's threads can hang
+        from fem_offline.sweep import single_threaded_pool
+
+        with single_threaded_pool(workers) as pool:
+            futures = {key: pool.submit(_solve_draw, str(model), str(path), state, solve_missing)
+                       for key, (path, state) in draws_todo}
+            solved_u = {key: f.result() for key, f in tqdm(futures.items(), desc="draws", unit="solve")}
     node_sets = {r: np.asarray(folder.mesh.node_sets[r]) for r in REGIONS}
     rows = []
     for name in points:
